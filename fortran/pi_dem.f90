@@ -1,0 +1,442 @@
+!> DEM storage and interpolation: the paper's section 2.1-2.2 (eqs. 1-12).
+!>
+!> A DEM is a global grid of planetocentric radii at pixel centres,
+!> `nlon = 360*ppd` columns by `nlat = 180*ppd` rows, row 1 in the south
+!> (centre latitude -90 + 1/(2 ppd) deg), column 1 centred at east longitude
+!> 1/(2 ppd) deg; record k = (j-1)*nlon + i (eq. 1). See DESIGN section 3 for
+!> the `.hdr`/`.dem` file pair.
+!>
+!> Two storage modes, as the paper's `dem_read_mode`:
+!>   0  the whole grid in memory (read from the file, or attached to a caller's
+!>      array without copying);
+!>   1  the `.dem` file is kept open and single records are read on demand by
+!>      direct (stream) access; only the two polar-row means are held.
+!> Both give bit-identical radii.
+!>
+!> Reentrant: a `dem_t` holds no hidden global state; several may be open at
+!> once, and one may be shared by threads (mode 0 only reads memory; mode 1
+!> reads through its own unit, one positioned READ per record).
+module pi_dem
+  use pi_kinds, only: dp, sp, i1, i4, i8
+  use pi_status
+  use pi_vector, only: pi, rad, deg, lon_diff
+  use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
+  implicit none
+  private
+
+  public :: dem_t, dem_read_header, dem_open, dem_attach, dem_close, dem_radius, &
+            dem_polar_mean, dem_paths
+
+  !> An open DEM (either storage mode).
+  type :: dem_t
+    !> Pixels per degree, m_pix of Table 1.
+    integer :: ppd = 0
+    !> Number of longitude columns (360*ppd) and latitude rows (180*ppd).
+    integer :: nlon = 0, nlat = 0
+    !> Maximum radius (Table 1), flattening and equatorial radius of the spheroid.
+    real(dp) :: rmax = 0.0_dp, f = 0.0_dp, re = 1.0_dp
+    !> 0: grid in memory; 1: records read from the open file.
+    integer :: read_mode = 0
+    !> Mode 0: the grid, radii(i, j) = radius of column i, row j.
+    real(dp), pointer, contiguous :: radii(:, :) => null()
+    !> True when `radii` was allocated here (and is freed by dem_close).
+    logical :: owns_radii = .false.
+    !> Mode 1: unit of the open `.dem` file, bytes per record, byte swap needed.
+    integer :: unit = -1
+    integer :: itemsize = 4
+    logical :: swap = .false.
+    !> Mean radius of the southernmost and northernmost rows (section 2.2,
+    !> the radius assigned to the poles).
+    real(dp) :: pole_south = 0.0_dp, pole_north = 0.0_dp
+  end type dem_t
+
+contains
+
+  !> Names of the `.hdr` and `.dem` files of a DEM given as `NAME`, `NAME.hdr`
+  !> or `NAME.dem`.
+  pure subroutine dem_paths(name, hdr, dem)
+    character(len=*), intent(in) :: name
+    character(len=:), allocatable, intent(out) :: hdr, dem
+    integer :: n
+    n = len_trim(name)
+    if (n >= 4) then
+      if (name(n-3:n) == '.hdr' .or. name(n-3:n) == '.dem') n = n - 4
+    end if
+    hdr = name(1:n) // '.hdr'
+    dem = name(1:n) // '.dem'
+  end subroutine dem_paths
+
+  !> Read and check a `.hdr` file (Table 1 plus optional `key = value` lines).
+  !>
+  !> The first four non-comment lines hold ppd, rmax, f, re; text after the
+  !> value is a comment; blank lines and lines starting `#` or `!` are skipped.
+  !> Later lines may be `dtype = float32|float64` and
+  !> `byteorder = little|big`; any other key is an error.
+  !>
+  !> stat: stat_hdr_open, stat_hdr_value, stat_hdr_key, stat_bad_ppd,
+  !> stat_bad_rmax, stat_bad_f, stat_bad_re.
+  subroutine dem_read_header(hdr, ppd, rmax, f, re, itemsize, swap, stat)
+    character(len=*), intent(in) :: hdr
+    integer, intent(out) :: ppd, itemsize
+    real(dp), intent(out) :: rmax, f, re
+    logical, intent(out) :: swap
+    integer, intent(out) :: stat
+    character(len=1024) :: line
+    character(len=:), allocatable :: key, val
+    integer :: u, ios, nval, k
+    logical :: big
+
+    ppd = 0; rmax = 0.0_dp; f = 0.0_dp; re = 1.0_dp; itemsize = 4; big = .false.
+    swap = .false.
+    stat = stat_ok
+    open(newunit=u, file=hdr, status='old', action='read', form='formatted', iostat=ios)
+    if (ios /= 0) then
+      stat = stat_hdr_open
+      return
+    end if
+    nval = 0
+    do
+      read(u, '(a)', iostat=ios) line
+      if (ios /= 0) exit
+      line = adjustl(line)
+      if (len_trim(line) == 0) cycle
+      if (line(1:1) == '#' .or. line(1:1) == '!') cycle
+      if (nval < 4) then
+        nval = nval + 1
+        select case (nval)
+        case (1)
+          read(line, *, iostat=ios) ppd
+        case (2)
+          read(line, *, iostat=ios) rmax
+        case (3)
+          read(line, *, iostat=ios) f
+        case (4)
+          read(line, *, iostat=ios) re
+        end select
+        if (ios /= 0) then
+          stat = stat_hdr_value
+          exit
+        end if
+      else
+        k = index(line, '=')
+        if (k == 0) then
+          stat = stat_hdr_key
+          exit
+        end if
+        key = lower(trim(adjustl(line(1:k-1))))
+        val = first_word(line(k+1:))
+        select case (key)
+        case ('dtype')
+          select case (lower(val))
+          case ('float32')
+            itemsize = 4
+          case ('float64')
+            itemsize = 8
+          case default
+            stat = stat_hdr_key
+          end select
+        case ('byteorder')
+          select case (lower(val))
+          case ('little')
+            big = .false.
+          case ('big')
+            big = .true.
+          case default
+            stat = stat_hdr_key
+          end select
+        case default
+          stat = stat_hdr_key
+        end select
+        if (stat /= stat_ok) exit
+      end if
+    end do
+    close(u)
+    if (stat /= stat_ok) return
+    if (nval < 4) then
+      stat = stat_hdr_value
+    else if (ppd < 1) then
+      stat = stat_bad_ppd
+    else if (.not. ieee_is_finite(rmax) .or. rmax <= 0.0_dp) then
+      stat = stat_bad_rmax
+    else if (.not. ieee_is_finite(f) .or. f < 0.0_dp .or. f >= 1.0_dp) then
+      stat = stat_bad_f
+    else if (.not. ieee_is_finite(re) .or. re <= 0.0_dp) then
+      stat = stat_bad_re
+    end if
+    swap = big .neqv. native_big_endian()
+  end subroutine dem_read_header
+
+  !> Open a DEM from its file pair (the paper's zdem_open, plus zdem_read for
+  !> read_mode 0).
+  !>
+  !> name: `NAME`, `NAME.hdr` or `NAME.dem`. read_mode 0 reads the whole grid
+  !> and checks every radius (finite, positive, <= rmax); read_mode 1 keeps the
+  !> file open and reads only the two polar rows, to form their means; its
+  !> records are checked as they are read.
+  !>
+  !> stat: any code of dem_read_header, stat_dem_open, stat_dem_size,
+  !> stat_dem_read, stat_bad_radii, stat_bad_rmax, stat_bad_mode.
+  subroutine dem_open(name, read_mode, dem, stat)
+    character(len=*), intent(in) :: name
+    integer, intent(in) :: read_mode
+    type(dem_t), intent(out) :: dem
+    integer, intent(out) :: stat
+    character(len=:), allocatable :: hdr, demfile
+    integer(i8) :: fsize
+    integer :: ios, j
+    real(dp), allocatable :: row(:)
+
+    if (read_mode /= 0 .and. read_mode /= 1) then
+      stat = stat_bad_mode
+      return
+    end if
+    call dem_paths(name, hdr, demfile)
+    call dem_read_header(hdr, dem%ppd, dem%rmax, dem%f, dem%re, dem%itemsize, dem%swap, stat)
+    if (stat /= stat_ok) return
+    dem%nlon = 360*dem%ppd
+    dem%nlat = 180*dem%ppd
+    dem%read_mode = read_mode
+
+    open(newunit=dem%unit, file=demfile, status='old', action='read', access='stream', &
+         form='unformatted', iostat=ios)
+    if (ios /= 0) then
+      dem%unit = -1
+      stat = stat_dem_open
+      return
+    end if
+    inquire(unit=dem%unit, size=fsize)
+    if (fsize /= int(dem%nlon, i8)*int(dem%nlat, i8)*int(dem%itemsize, i8)) then
+      stat = stat_dem_size
+      call dem_close(dem)
+      return
+    end if
+
+    if (read_mode == 0) then
+      allocate(dem%radii(dem%nlon, dem%nlat))
+      dem%owns_radii = .true.
+      do j = 1, dem%nlat
+        call read_records(dem, int(j-1, i8)*dem%nlon + 1, dem%nlon, dem%radii(:, j), stat)
+        if (stat /= stat_ok) exit
+      end do
+      close(dem%unit)
+      dem%unit = -1
+      if (stat /= stat_ok) then
+        call dem_close(dem)
+        return
+      end if
+      dem%pole_south = dem_polar_mean(dem%radii(:, 1))
+      dem%pole_north = dem_polar_mean(dem%radii(:, dem%nlat))
+    else
+      allocate(row(dem%nlon))
+      call read_records(dem, 1_i8, dem%nlon, row, stat)
+      if (stat == stat_ok) dem%pole_south = dem_polar_mean(row)
+      if (stat == stat_ok) call read_records(dem, int(dem%nlat-1, i8)*dem%nlon + 1, dem%nlon, row, stat)
+      if (stat == stat_ok) dem%pole_north = dem_polar_mean(row)
+      if (stat /= stat_ok) call dem_close(dem)
+    end if
+  end subroutine dem_open
+
+  !> Attach a caller's grid as a read_mode-0 DEM without copying it.
+  !>
+  !> radii(nlon, nlat) must stay alive and unchanged while `dem` is used. The
+  !> caller is responsible for having validated the radii (the Python layer
+  !> does so once, when the DEM is made); this routine checks the shape and
+  !> the header values only.
+  !>
+  !> stat: stat_bad_ppd, stat_bad_shape, stat_bad_rmax, stat_bad_f, stat_bad_re.
+  subroutine dem_attach(radii, ppd, rmax, f, re, dem, stat)
+    real(dp), intent(in), target, contiguous :: radii(:, :)
+    integer, intent(in) :: ppd
+    real(dp), intent(in) :: rmax, f, re
+    type(dem_t), intent(out) :: dem
+    integer, intent(out) :: stat
+    stat = stat_ok
+    if (ppd < 1) then
+      stat = stat_bad_ppd
+    else if (size(radii, 1) /= 360*ppd .or. size(radii, 2) /= 180*ppd) then
+      stat = stat_bad_shape
+    else if (.not. ieee_is_finite(rmax) .or. rmax <= 0.0_dp) then
+      stat = stat_bad_rmax
+    else if (.not. ieee_is_finite(f) .or. f < 0.0_dp .or. f >= 1.0_dp) then
+      stat = stat_bad_f
+    else if (.not. ieee_is_finite(re) .or. re <= 0.0_dp) then
+      stat = stat_bad_re
+    end if
+    if (stat /= stat_ok) return
+    dem%ppd = ppd
+    dem%nlon = 360*ppd
+    dem%nlat = 180*ppd
+    dem%rmax = rmax
+    dem%f = f
+    dem%re = re
+    dem%read_mode = 0
+    dem%radii => radii
+    dem%owns_radii = .false.
+    dem%pole_south = dem_polar_mean(radii(:, 1))
+    dem%pole_north = dem_polar_mean(radii(:, dem%nlat))
+  end subroutine dem_attach
+
+  !> Release a DEM: close its file, free a grid it owns.
+  subroutine dem_close(dem)
+    type(dem_t), intent(inout) :: dem
+    if (dem%unit /= -1) close(dem%unit)
+    dem%unit = -1
+    if (dem%owns_radii .and. associated(dem%radii)) deallocate(dem%radii)
+    dem%radii => null()
+    dem%owns_radii = .false.
+  end subroutine dem_close
+
+  !> Mean of one polar row: the radius assigned to a pole (section 2.2).
+  pure function dem_polar_mean(row) result(r)
+    real(dp), intent(in) :: row(:)
+    real(dp) :: r
+    r = sum(row) / real(size(row), dp)
+  end function dem_polar_mean
+
+  !> Bilinearly interpolated DEM radius at planetocentric (lat, lon), radians:
+  !> the paper's zdem_radius (read_mode 0) and zdem_radius_increment
+  !> (read_mode 1), eqs. 2-12.
+  !>
+  !> Particulars. Column i1 = floor(Delta(phi1, lon) ppd) + 1 (eq. 6), with
+  !> phi1 = 1/(2 ppd) deg the first column centre and i2 = i1 + 1 wrapping
+  !> to 1 past nlon (eq. 7). Row j1 = floor((lat - theta1) ppd) + 1 (eq. 8),
+  !> j2 = j1 + 1 (eq. 9). Within half a pixel of a pole (j1 = 0 or
+  !> j1 = nlat) the missing row is the pole itself, at latitude -90 or +90
+  !> deg, carrying the mean radius of the adjacent row; the latitude fraction
+  !> is then measured over that half-pixel gap, so the surface is continuous
+  !> and single-valued at the pole (docs/paper-notes.md). Eqs. 10-12 blend.
+  !>
+  !> stat: stat_ok; in read_mode 1 stat_dem_read, stat_bad_radii or
+  !> stat_bad_rmax when a record cannot be read or is invalid (r is then 0).
+  subroutine dem_radius(dem, lat, lon, r, stat)
+    type(dem_t), intent(in) :: dem
+    real(dp), intent(in) :: lat, lon
+    real(dp), intent(out) :: r
+    integer, intent(out) :: stat
+    real(dp) :: x, y, fx, fy, r1, r2, r3, r4, ra, rb, theta1_deg, lat_deg
+    integer :: i1, i2, j1
+
+    stat = stat_ok
+    ! eq. 6: fractional column offset from the first column centre, in pixels
+    x = lon_diff(rad*0.5_dp/dem%ppd, lon) * deg * dem%ppd
+    i1 = int(x) + 1                       ! x >= 0, so int() is floor()
+    if (i1 > dem%nlon) i1 = dem%nlon      ! x rounded up to nlon: stay on the last column
+    fx = x - real(i1 - 1, dp)             ! m_pix * delta-phi of eqs. 10-11
+    i2 = i1 + 1                           ! eq. 7
+    if (i2 > dem%nlon) i2 = 1             ! longitude cyclicity
+
+    ! eq. 8: fractional row offset from the first row centre
+    lat_deg = lat*deg
+    theta1_deg = -90.0_dp + 0.5_dp/dem%ppd
+    y = (lat_deg - theta1_deg) * dem%ppd
+    j1 = floor(y) + 1
+    if (j1 <= 0) then
+      ! south polar cap: the pole (r1 = r2 = mean of row 1) at -90 deg, row 1 half a pixel north
+      fy = min(max((lat_deg + 90.0_dp) * 2.0_dp * dem%ppd, 0.0_dp), 1.0_dp)
+      r1 = dem%pole_south
+      r2 = dem%pole_south
+      call get(i1, 1, r3)
+      call get(i2, 1, r4)
+    else if (j1 >= dem%nlat) then
+      ! north polar cap: row nlat, then the pole (r3 = r4 = mean of row nlat) at +90 deg
+      fy = min(max((lat_deg - (90.0_dp - 0.5_dp/dem%ppd)) * 2.0_dp * dem%ppd, 0.0_dp), 1.0_dp)
+      call get(i1, dem%nlat, r1)
+      call get(i2, dem%nlat, r2)
+      r3 = dem%pole_north
+      r4 = dem%pole_north
+    else
+      fy = y - real(j1 - 1, dp)           ! m_pix * delta-theta of eq. 12
+      call get(i1, j1, r1)                ! eq. 2
+      call get(i2, j1, r2)                ! eq. 3
+      call get(i1, j1 + 1, r3)            ! eq. 4
+      call get(i2, j1 + 1, r4)            ! eq. 5
+    end if
+    ra = r1 + fx*(r2 - r1)                ! eq. 10
+    rb = r3 + fx*(r4 - r3)                ! eq. 11
+    r = ra + fy*(rb - ra)                 ! eq. 12
+    if (stat /= stat_ok) r = 0.0_dp
+
+  contains
+
+    subroutine get(i, j, value)
+      integer, intent(in) :: i, j
+      real(dp), intent(out) :: value
+      real(dp) :: buf(1)
+      integer :: st
+      if (dem%read_mode == 0) then
+        value = dem%radii(i, j)
+      else
+        call read_records(dem, int(j - 1, i8)*dem%nlon + i, 1, buf, st)   ! eq. 1
+        value = buf(1)
+        if (st /= stat_ok) stat = st
+      end if
+    end subroutine get
+
+  end subroutine dem_radius
+
+  !> Read `n` consecutive records starting at record `first` (1-based, eq. 1)
+  !> from the open `.dem` file, widen to real(dp) and check them.
+  subroutine read_records(dem, first, n, values, stat)
+    type(dem_t), intent(in) :: dem
+    integer(i8), intent(in) :: first
+    integer, intent(in) :: n
+    real(dp), intent(out) :: values(n)
+    integer, intent(out) :: stat
+    integer(i1) :: bytes(dem%itemsize*n)
+    integer :: ios, k, m
+
+    stat = stat_ok
+    m = dem%itemsize
+    read(dem%unit, pos=(first - 1)*m + 1, iostat=ios) bytes
+    if (ios /= 0) then
+      values = 0.0_dp
+      stat = stat_dem_read
+      return
+    end if
+    if (dem%swap) then
+      do k = 0, n - 1
+        bytes(k*m + 1:k*m + m) = bytes(k*m + m:k*m + 1:-1)
+      end do
+    end if
+    if (m == 4) then
+      values = real(transfer(bytes, 0.0_sp, n), dp)
+    else
+      values = transfer(bytes, 0.0_dp, n)
+    end if
+    do k = 1, n
+      if (.not. ieee_is_finite(values(k)) .or. values(k) <= 0.0_dp) then
+        stat = stat_bad_radii
+      else if (values(k) > dem%rmax) then
+        stat = stat_bad_rmax
+      end if
+    end do
+  end subroutine read_records
+
+  pure function native_big_endian() result(big)
+    logical :: big
+    big = transfer(1_i4, 0_i1) == 0_i1
+  end function native_big_endian
+
+  pure function lower(s) result(t)
+    character(len=*), intent(in) :: s
+    character(len=len(s)) :: t
+    integer :: k, c
+    t = s
+    do k = 1, len(s)
+      c = iachar(s(k:k))
+      if (c >= iachar('A') .and. c <= iachar('Z')) t(k:k) = achar(c + 32)
+    end do
+  end function lower
+
+  pure function first_word(s) result(w)
+    character(len=*), intent(in) :: s
+    character(len=:), allocatable :: w
+    character(len=len(s)) :: t
+    integer :: k
+    t = adjustl(s)
+    k = scan(t, ' '//achar(9))
+    if (k == 0) k = len(t) + 1
+    w = t(1:k-1)
+  end function first_word
+
+end module pi_dem

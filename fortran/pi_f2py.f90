@@ -1,0 +1,139 @@
+!> The flat boundary that f2py wraps (described by `_core.pyf`): plain arrays,
+!> scalars and a path string, no derived types. Python calls these through
+!> `planet_intersect._core`; users call the Python API instead.
+!>
+!> Angles are radians. Per-ray scalars are packed in `scal(9, n)`:
+!>   1 lat, 2 lon, 3 radius, 4 altitude, 5 emission (hits);
+!>   6 tangent_lat, 7 tangent_lon, 8 tangent_altitude, 9 tangent_height (limb rays).
+
+!> Intersect n rays with a DEM held in memory (dem_read_mode 0). See
+!> pi_intersect::intersect_ray for the algorithm and outputs.
+subroutine core_intersect_grid(nlon, nlat, radii, ppd, rmax, f, re, n, s, l, step_mode, &
+                               tangent_mode, p, t, tc, sc, scal, status, nsteps, stat)
+  use pi_kinds, only: dp
+  use pi_dem, only: dem_t, dem_attach
+  use pi_status, only: stat_ok
+  use pi_intersect, only: intersect_packed
+  implicit none
+  integer, intent(in) :: nlon, nlat, ppd, n, step_mode, tangent_mode
+  real(dp), intent(in), target :: radii(nlon, nlat)
+  real(dp), intent(in) :: rmax, f, re, s(3, n), l(3, n)
+  real(dp), intent(out) :: p(3, n), t(3, n), tc(3, n), sc(3, n), scal(9, n)
+  integer, intent(out) :: status(n), nsteps(n), stat
+  type(dem_t) :: dem
+  call dem_attach(radii, ppd, rmax, f, re, dem, stat)
+  if (stat /= stat_ok) then
+    p = 0.0_dp; t = 0.0_dp; tc = 0.0_dp; sc = 0.0_dp; scal = 0.0_dp
+    status = -1; nsteps = 0
+    return
+  end if
+  call intersect_packed(dem, n, s, l, step_mode, tangent_mode, p, t, tc, sc, scal, status, nsteps, stat)
+end subroutine core_intersect_grid
+
+!> Intersect n rays with the DEM file pair `path` (NAME, NAME.hdr or NAME.dem)
+!> read by Fortran in dem_read_mode 0 (whole grid) or 1 (record by record).
+subroutine core_intersect_file(path, read_mode, n, s, l, step_mode, tangent_mode, &
+                               p, t, tc, sc, scal, status, nsteps, stat)
+  use pi_kinds, only: dp
+  use pi_dem, only: dem_t, dem_open, dem_close
+  use pi_status, only: stat_ok
+  use pi_intersect, only: intersect_packed
+  implicit none
+  character(len=*), intent(in) :: path
+  integer, intent(in) :: read_mode, n, step_mode, tangent_mode
+  real(dp), intent(in) :: s(3, n), l(3, n)
+  real(dp), intent(out) :: p(3, n), t(3, n), tc(3, n), sc(3, n), scal(9, n)
+  integer, intent(out) :: status(n), nsteps(n), stat
+  type(dem_t) :: dem
+  p = 0.0_dp; t = 0.0_dp; tc = 0.0_dp; sc = 0.0_dp; scal = 0.0_dp
+  status = -1; nsteps = 0
+  call dem_open(path, read_mode, dem, stat)
+  if (stat /= stat_ok) return
+  call intersect_packed(dem, n, s, l, step_mode, tangent_mode, p, t, tc, sc, scal, status, nsteps, stat)
+  call dem_close(dem)
+end subroutine core_intersect_file
+
+!> DEM radius (eqs. 2-12) at n points (radians) of a grid held in memory.
+subroutine core_radius_grid(nlon, nlat, radii, ppd, n, lat, lon, r, stat)
+  use pi_kinds, only: dp
+  use pi_dem, only: dem_t, dem_attach, dem_radius
+  use pi_status, only: stat_ok
+  implicit none
+  integer, intent(in) :: nlon, nlat, ppd, n
+  real(dp), intent(in), target :: radii(nlon, nlat)
+  real(dp), intent(in) :: lat(n), lon(n)
+  real(dp), intent(out) :: r(n)
+  integer, intent(out) :: stat
+  type(dem_t) :: dem
+  integer :: k
+  r = 0.0_dp
+  call dem_attach(radii, ppd, maxval(radii), 0.0_dp, 1.0_dp, dem, stat)
+  if (stat /= stat_ok) return
+  do k = 1, n
+    call dem_radius(dem, lat(k), lon(k), r(k), stat)
+  end do
+end subroutine core_radius_grid
+
+!> DEM radius (eqs. 2-12) at n points (radians) read from the file pair `path`.
+subroutine core_radius_file(path, read_mode, n, lat, lon, r, stat)
+  use pi_kinds, only: dp
+  use pi_dem, only: dem_t, dem_open, dem_close, dem_radius
+  use pi_status, only: stat_ok
+  implicit none
+  character(len=*), intent(in) :: path
+  integer, intent(in) :: read_mode, n
+  real(dp), intent(in) :: lat(n), lon(n)
+  real(dp), intent(out) :: r(n)
+  integer, intent(out) :: stat
+  type(dem_t) :: dem
+  integer :: k
+  r = 0.0_dp
+  call dem_open(path, read_mode, dem, stat)
+  if (stat /= stat_ok) return
+  do k = 1, n
+    call dem_radius(dem, lat(k), lon(k), r(k), stat)
+    if (stat /= stat_ok) exit
+  end do
+  call dem_close(dem)
+end subroutine core_radius_file
+
+!> Header values of a `.hdr` file as the Fortran reader sees them.
+subroutine core_read_header(path, ppd, rmax, f, re, itemsize, swap, stat)
+  use pi_kinds, only: dp
+  use pi_dem, only: dem_read_header, dem_paths
+  implicit none
+  character(len=*), intent(in) :: path
+  integer, intent(out) :: ppd, itemsize, swap, stat
+  real(dp), intent(out) :: rmax, f, re
+  character(len=:), allocatable :: hdr, dem
+  logical :: lswap
+  call dem_paths(path, hdr, dem)
+  call dem_read_header(hdr, ppd, rmax, f, re, itemsize, lswap, stat)
+  swap = merge(1, 0, lswap)
+end subroutine core_read_header
+
+!> Tangent point of n lines on the spheroid (f, re): mode 0 paper, 1 exact.
+subroutine core_tangent(n, s, l, f, re, mode, tc, sc, d)
+  use pi_kinds, only: dp
+  use pi_vector, only: unit_vector
+  use pi_spheroid, only: tangent_spheroid
+  implicit none
+  integer, intent(in) :: n, mode
+  real(dp), intent(in) :: s(3, n), l(3, n), f, re
+  real(dp), intent(out) :: tc(3, n), sc(3, n), d(n)
+  integer :: k
+  do k = 1, n
+    call tangent_spheroid(s(:, k), unit_vector(l(:, k)), f, re, mode, tc(:, k), sc(:, k), d(k))
+  end do
+end subroutine core_tangent
+
+!> The status-code table as compiled, so Python can check that its copy agrees.
+subroutine core_codes(codes)
+  use pi_status
+  implicit none
+  integer, intent(out) :: codes(22)
+  codes = [stat_ok, stat_hdr_open, stat_hdr_value, stat_hdr_key, stat_dem_open, stat_dem_size, &
+           stat_dem_read, stat_bad_ppd, stat_bad_rmax, stat_bad_f, stat_bad_re, stat_bad_radii, &
+           stat_bad_mode, stat_bad_shape, ray_hit, ray_limb, ray_away, ray_hit_unconverged, &
+           ray_bad_direction, ray_bad_position, ray_inside, ray_read_error]
+end subroutine core_codes

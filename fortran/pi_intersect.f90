@@ -1,0 +1,323 @@
+!> Ray stepping to the DEM surface: the paper's zcalc_planet_intersect
+!> (section 2.3.2, eqs. 19-44), hit properties (section 2.4, eqs. 42-50) and
+!> limb tangent points (section 2.4.1, eqs. 51-63).
+!>
+!> The path of one ray, in order:
+!>   1. eq. 19-20  limb viewing angle psi0 and spherical tangent point t;
+!>   2. eq. 21-22  search interval [d0, dm] where the ray is inside r_max;
+!>   3. eq. 23-28  steps that each subtend delta-alpha at the planet centre;
+!>   4. eq. 29-30  latitude/longitude of each test point, DEM radius (eqs. 2-12);
+!>   5. eq. 31-41  refinement of the bracketed crossing;
+!>   6. eq. 42-50  latitude, longitude, radius and emission angle of the hit;
+!>   7. eq. 51-63  for a ray that misses: tc, sc and the tangent altitude.
+!>
+!> Every choice where the paper is silent or degenerate is listed in
+!> docs/paper-notes.md and marked "[note N]" below.
+module pi_intersect
+  use pi_kinds, only: dp, i8
+  use pi_status
+  use pi_vector, only: pi, rad, deg, vsep, latlon_of, unit_vector
+  use pi_dem, only: dem_t, dem_radius
+  use pi_spheroid, only: spheroid_normal, spheroid_radius, tangent_spheroid
+  use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan, ieee_is_finite
+  implicit none
+  private
+
+  public :: ray_result_t, intersect_ray, intersect_rays, intersect_packed, step_angle, refine_tol_rel, refine_maxit
+
+  !> Refinement stops when |r(p') - p'| <= refine_tol_rel * rmax [note 5].
+  real(dp), parameter :: refine_tol_rel = 1.0e-12_dp
+  !> Iteration limit of the refinement [note 5].
+  integer, parameter :: refine_maxit = 100
+
+  !> Everything computed for one ray. Lengths in the DEM's units, angles in
+  !> radians, NaN where a quantity does not apply.
+  type :: ray_result_t
+    !> One of the ray_* codes of pi_status.
+    integer :: status = ray_bad_direction
+    !> Number of test points evaluated (steps) and refinement iterations.
+    integer :: nsteps = 0, niter = 0
+    !> Hit point p (eq. 35 at convergence), its latitude, longitude, radius
+    !> (eqs. 42-44), height above the spheroid (NaN without one), emission angle (eq. 45).
+    real(dp) :: p(3), lat, lon, radius, altitude, emission
+    !> Spherical tangent point t (eq. 20), spheroid tangent point tc (eq. 57),
+    !> spheroid point sc below it; latitude/longitude of sc (eqs. 59-60);
+    !> tangent altitude above the DEM (eq. 63) and above the spheroid (eq. 58, signed).
+    real(dp) :: t(3), tc(3), sc(3), tangent_lat, tangent_lon, tangent_altitude, tangent_height
+  end type ray_result_t
+
+contains
+
+  !> Angular step delta-alpha of eq. 23, radians, at latitude lat (radians).
+  !>
+  !> step_mode 1: cos(theta)/(2 ppd) degrees with theta clamped to the
+  !> first/last row centre, theta1 = -90 + 1/(2 ppd) and theta_n = -theta1,
+  !> so the step cannot collapse at the poles; step_mode 0: 1/(2 ppd) degrees.
+  pure function step_angle(lat, ppd, step_mode) result(dalpha)
+    real(dp), intent(in) :: lat
+    integer, intent(in) :: ppd, step_mode
+    real(dp) :: dalpha, lat_max
+    if (step_mode == 1) then
+      lat_max = (90.0_dp - 0.5_dp/ppd)*rad
+      dalpha = cos(min(abs(lat), lat_max)) / (2.0_dp*ppd) * rad
+    else
+      dalpha = 1.0_dp / (2.0_dp*ppd) * rad
+    end if
+  end function step_angle
+
+  !> Intersect one line of sight with the DEM (the paper's zcalc_planet_intersect
+  !> for one pixel).
+  !>
+  !> Inputs: dem (open, either read mode); s, the spacecraft position in the
+  !> planet-fixed frame (DEM units); l, the line of sight (any non-zero length,
+  !> normalised here); step_mode 0 or 1 (eq. 23); tangent_mode 0 (paper's
+  !> eqs. 55-58) or 1 (exact nearest point).
+  !> Output: res, with res%status one of ray_hit, ray_hit_unconverged,
+  !> ray_limb, ray_away, ray_bad_direction, ray_bad_position, ray_inside,
+  !> ray_read_error.
+  !>
+  !> Particulars. Test points g_i = s + d_i l start at d0 (eq. 24; at the
+  !> spacecraft when it is inside r_max, [note 3]) and advance by the sine rule
+  !> (eqs. 25-28) with psi_i the angle at the current test point between l and
+  !> the direction to the centre [note 1]. The first g_{i+1} with |g_{i+1}| < r_{i+1}
+  !> brackets the hit, which is refined with eqs. 34-41. No test point beyond dm.
+  subroutine intersect_ray(dem, s, l_in, step_mode, tangent_mode, res)
+    type(dem_t), intent(in) :: dem
+    real(dp), intent(in) :: s(3), l_in(3)
+    integer, intent(in) :: step_mode, tangent_mode
+    type(ray_result_t), intent(out) :: res
+    real(dp) :: l(3), sn, cos_psi0, tn, half, d0, dm, nan, lat, lon, r_s
+    real(dp) :: g(3), gn, rg, psi, dalpha, psi_next, denom, dg, d, d_next
+    real(dp) :: g_next(3), gn_next, r_next, lat_next, lon_next, n(3), r_tc
+    integer :: st
+    logical :: hit
+
+    nan = ieee_value(0.0_dp, ieee_quiet_nan)
+    res%p = nan; res%lat = nan; res%lon = nan; res%radius = nan
+    res%altitude = nan; res%emission = nan
+    res%t = nan; res%tc = nan; res%sc = nan
+    res%tangent_lat = nan; res%tangent_lon = nan
+    res%tangent_altitude = nan; res%tangent_height = nan
+    res%nsteps = 0
+    res%niter = 0
+
+    if (.not. all(ieee_is_finite(l_in)) .or. norm2(l_in) <= 0.0_dp) then
+      res%status = ray_bad_direction
+      return
+    end if
+    sn = norm2(s)
+    if (.not. all(ieee_is_finite(s)) .or. sn <= 0.0_dp) then
+      res%status = ray_bad_position
+      return
+    end if
+    l = l_in/norm2(l_in)
+
+    ! a spacecraft inside r_max must be above the surface
+    if (sn <= dem%rmax) then
+      call latlon_of(s, lat, lon)
+      call dem_radius(dem, lat, lon, r_s, st)
+      if (st /= stat_ok) then
+        res%status = ray_read_error
+        return
+      end if
+      if (sn < r_s) then
+        res%status = ray_inside
+        return
+      end if
+    end if
+
+    cos_psi0 = -dot_product(s, l)/sn              ! eq. 19
+    res%t = s + sn*cos_psi0*l                     ! eq. 20
+    tn = norm2(res%t)
+
+    hit = .false.
+    if (tn < dem%rmax) then
+      half = sqrt(dem%rmax**2 - tn**2)
+      d0 = sn*cos_psi0 - half                     ! eq. 21
+      dm = sn*cos_psi0 + half                     ! eq. 22
+      if (dm > 0.0_dp) then
+        d = max(d0, 0.0_dp)                       ! [note 3]
+        g = s + d*l                               ! eq. 24
+        gn = norm2(g)
+        psi = vsep(l, -g)                         ! angle at g0 [note 1]
+        call latlon_of(g, lat, lon)
+        do
+          dalpha = step_angle(lat, dem%ppd, step_mode)          ! eq. 23
+          psi_next = psi + dalpha                               ! eq. 25
+          denom = max(sin(pi - psi_next), sin(dalpha))          ! [note 2]
+          dg = sin(dalpha)*gn/denom                             ! eq. 26
+          d_next = d + dg                                       ! eq. 27
+          if (d_next > dm) exit                                 ! past the search interval: no hit
+          g_next = s + d_next*l                                 ! eq. 28
+          gn_next = norm2(g_next)
+          call latlon_of(g_next, lat_next, lon_next)            ! eqs. 29-30
+          call dem_radius(dem, lat_next, lon_next, r_next, st)  ! eqs. 2-12
+          res%nsteps = res%nsteps + 1
+          if (st /= stat_ok) then
+            res%status = ray_read_error
+            return
+          end if
+          if (gn_next < r_next) then
+            if (res%nsteps == 1) then
+              ! the bracket's upper end needs r at g0 (eq. 34)
+              call dem_radius(dem, lat, lon, rg, st)
+              if (st /= stat_ok) then
+                res%status = ray_read_error
+                return
+              end if
+            end if
+            call refine(dem, l, g, gn, rg, g_next, gn_next, r_next, dg, res, st)
+            if (st /= stat_ok) then
+              res%status = ray_read_error
+              return
+            end if
+            hit = .true.
+            exit
+          end if
+          d = d_next
+          g = g_next
+          gn = gn_next
+          rg = r_next
+          psi = psi_next
+          lat = lat_next
+          lon = lon_next
+        end do
+      end if
+    end if
+
+    if (hit) then
+      call latlon_of(res%p, res%lat, res%lon)                   ! eqs. 42-43
+      res%radius = norm2(res%p)                                 ! eq. 44
+      n = spheroid_normal(res%p, dem%f)                         ! eq. 50
+      res%emission = vsep(n, -l)                                ! eq. 45
+      if (has_spheroid(dem)) res%altitude = res%radius - spheroid_radius(res%lat, dem%f, dem%re)
+      res%t = nan                                               ! [note 7]
+      return
+    end if
+
+    if (cos_psi0 < 0.0_dp) then
+      res%status = ray_away                                     ! no tangent point ahead
+      res%t = nan
+      return
+    end if
+
+    ! limb view: tangent point on the spheroid and its altitude above the DEM
+    res%status = ray_limb
+    call tangent_spheroid(s, l, dem%f, dem%re, tangent_mode, res%tc, res%sc, res%tangent_height)
+    call latlon_of(res%sc, res%tangent_lat, res%tangent_lon)    ! eqs. 59-60
+    r_tc = spheroid_radius(res%tangent_lat, dem%f, dem%re)      ! eq. 61
+    call dem_radius(dem, res%tangent_lat, res%tangent_lon, rg, st)
+    if (st /= stat_ok) then
+      res%status = ray_read_error
+      return
+    end if
+    n = spheroid_normal(res%sc, dem%f)
+    ! eq. 63, with n_c taken as the outward spheroid normal at sc [note 6]
+    res%tangent_altitude = (r_tc - rg)*dot_product(res%sc, n)/(norm2(res%sc)*norm2(n)) &
+                           + res%tangent_height
+  end subroutine intersect_ray
+
+  !> Refine a bracketed crossing by eqs. 31-41.
+  !>
+  !> ga (radius gna, DEM radius ra) is above the surface, gb (gnb, rb) below,
+  !> dg = |gb - ga|. Each iteration places p' where the chord ga-gb crosses
+  !> the chord between the surface points below ga and gb (eq. 34, v in [0, 1))
+  !> and keeps the half that still brackets the crossing (eqs. 36-41), until
+  !> |r(p') - p'| <= refine_tol_rel*rmax or refine_maxit iterations [note 5].
+  subroutine refine(dem, l, ga_in, gna_in, ra_in, gb_in, gnb_in, rb_in, dg_in, res, stat)
+    type(dem_t), intent(in) :: dem
+    real(dp), intent(in) :: l(3), ga_in(3), gna_in, ra_in, gb_in(3), gnb_in, rb_in, dg_in
+    type(ray_result_t), intent(inout) :: res
+    integer, intent(out) :: stat
+    real(dp) :: ga(3), gna, ra, gnb, rb, dg, v, pp(3), pn, rp, lat, lon, tol
+    integer :: it
+
+    ga = ga_in; gna = gna_in; ra = ra_in
+    gnb = gnb_in; rb = rb_in; dg = dg_in
+    tol = refine_tol_rel*dem%rmax
+    res%status = ray_hit_unconverged
+    pp = gb_in
+    do it = 1, refine_maxit
+      v = rb*(ra - gna)/(gnb*ra - gna*rb)          ! eq. 34
+      pp = ga + v*dg*l                             ! eq. 35
+      pn = norm2(pp)
+      call latlon_of(pp, lat, lon)
+      call dem_radius(dem, lat, lon, rp, stat)
+      res%niter = it
+      if (stat /= stat_ok) return
+      if (abs(rp - pn) <= tol) then
+        res%status = ray_hit
+        exit
+      end if
+      if (rp > pn) then                            ! p' below the surface
+        gnb = pn; rb = rp                          ! eqs. 36-37
+        dg = v*dg                                  ! eq. 38
+      else                                         ! p' above the surface
+        ga = pp; gna = pn; ra = rp                 ! eqs. 39-40
+        dg = (1.0_dp - v)*dg                       ! eq. 41
+      end if
+    end do
+    res%p = pp
+  end subroutine refine
+
+  !> Intersect n rays: res(k) for spacecraft s(:, k) and line of sight l(:, k).
+  !>
+  !> stat: stat_bad_mode when step_mode or tangent_mode is not 0 or 1 (then
+  !> nothing is computed); otherwise stat_ok, with per-ray codes in res%status.
+  subroutine intersect_rays(dem, s, l, step_mode, tangent_mode, res, stat)
+    type(dem_t), intent(in) :: dem
+    real(dp), intent(in) :: s(:, :), l(:, :)
+    integer, intent(in) :: step_mode, tangent_mode
+    type(ray_result_t), intent(out) :: res(:)
+    integer, intent(out) :: stat
+    integer(i8) :: k
+    stat = stat_ok
+    if ((step_mode /= 0 .and. step_mode /= 1) .or. (tangent_mode /= 0 .and. tangent_mode /= 1)) then
+      stat = stat_bad_mode
+      return
+    end if
+    do k = 1, size(res, kind=i8)
+      call intersect_ray(dem, s(:, k), l(:, k), step_mode, tangent_mode, res(k))
+    end do
+  end subroutine intersect_rays
+
+  !> intersect_rays with the results unpacked into plain arrays (the form the
+  !> f2py boundary and the legacy zcalc_planet_intersect hand out).
+  !>
+  !> scal(:, k) = lat, lon, radius, altitude, emission, tangent_lat,
+  !> tangent_lon, tangent_altitude, tangent_height (radians, DEM units).
+  subroutine intersect_packed(dem, n, s, l, step_mode, tangent_mode, p, t, tc, sc, scal, status, nsteps, stat)
+    type(dem_t), intent(in) :: dem
+    integer, intent(in) :: n, step_mode, tangent_mode
+    real(dp), intent(in) :: s(3, n), l(3, n)
+    real(dp), intent(out) :: p(3, n), t(3, n), tc(3, n), sc(3, n), scal(9, n)
+    integer, intent(out) :: status(n), nsteps(n), stat
+    type(ray_result_t), allocatable :: res(:)
+    integer :: k
+    allocate(res(n))
+    call intersect_rays(dem, s, l, step_mode, tangent_mode, res, stat)
+    if (stat /= stat_ok) then
+      p = 0.0_dp; t = 0.0_dp; tc = 0.0_dp; sc = 0.0_dp; scal = 0.0_dp
+      status = -1; nsteps = 0
+      return
+    end if
+    do k = 1, n
+      p(:, k) = res(k)%p
+      t(:, k) = res(k)%t
+      tc(:, k) = res(k)%tc
+      sc(:, k) = res(k)%sc
+      scal(:, k) = [res(k)%lat, res(k)%lon, res(k)%radius, res(k)%altitude, res(k)%emission, &
+                    res(k)%tangent_lat, res(k)%tangent_lon, res(k)%tangent_altitude, res(k)%tangent_height]
+      status(k) = res(k)%status
+      nsteps(k) = res(k)%nsteps
+    end do
+  end subroutine intersect_packed
+
+  !> True when the header defines a reference spheroid (not Table 1's
+  !> f = 0, re = 1 placeholder for irregular bodies).
+  pure logical function has_spheroid(dem)
+    type(dem_t), intent(in) :: dem
+    has_spheroid = .not. (dem%f == 0.0_dp .and. dem%re == 1.0_dp)
+  end function has_spheroid
+
+end module pi_intersect

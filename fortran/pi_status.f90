@@ -1,0 +1,66 @@
+!> Status codes shared by every routine of planet-intersect.
+!>
+!> Library routines never STOP or print. A routine that can fail returns an
+!> integer `stat` (0 = success, one of the `stat_*` codes below otherwise) and
+!> the ray loop returns one `ray_*` code per ray. The Python layer
+!> (`planet_intersect._status`) holds the same table with messages; keep the
+!> two in step (a test compares them).
+module pi_status
+  implicit none
+  private
+
+  ! routine-level codes
+  public :: stat_ok, stat_hdr_open, stat_hdr_value, stat_hdr_key, stat_dem_open, &
+            stat_dem_size, stat_dem_read, stat_bad_ppd, stat_bad_rmax, stat_bad_f, &
+            stat_bad_re, stat_bad_radii, stat_bad_mode, stat_bad_shape
+  ! per-ray codes
+  public :: ray_hit, ray_limb, ray_away, ray_hit_unconverged, ray_bad_direction, &
+            ray_bad_position, ray_inside, ray_read_error
+
+  !> Success.
+  integer, parameter :: stat_ok = 0
+  !> The `.hdr` file cannot be opened or read.
+  integer, parameter :: stat_hdr_open = 1
+  !> One of the four header values is missing or not a number.
+  integer, parameter :: stat_hdr_value = 2
+  !> An optional `key = value` line has an unknown key or value.
+  integer, parameter :: stat_hdr_key = 3
+  !> The `.dem` file cannot be opened.
+  integer, parameter :: stat_dem_open = 4
+  !> The `.dem` size is not `nlat*nlon*itemsize` bytes.
+  integer, parameter :: stat_dem_size = 5
+  !> A read from the `.dem` file failed.
+  integer, parameter :: stat_dem_read = 6
+  !> `ppd < 1`.
+  integer, parameter :: stat_bad_ppd = 7
+  !> A radius exceeds `rmax` (or `rmax <= 0`).
+  integer, parameter :: stat_bad_rmax = 8
+  !> Flattening outside [0, 1).
+  integer, parameter :: stat_bad_f = 9
+  !> Equatorial radius not positive and finite.
+  integer, parameter :: stat_bad_re = 10
+  !> A radius is NaN, infinite or not positive.
+  integer, parameter :: stat_bad_radii = 11
+  !> `step_mode`, `dem_read_mode` or `tangent_mode` out of range.
+  integer, parameter :: stat_bad_mode = 12
+  !> Array dimensions disagree with `ppd`.
+  integer, parameter :: stat_bad_shape = 13
+
+  !> The ray hits the DEM surface; `p` and its properties are set.
+  integer, parameter :: ray_hit = 0
+  !> The ray misses the surface and passes the planet: tangent outputs are set.
+  integer, parameter :: ray_limb = 1
+  !> The ray misses and points away from the planet (cos psi0 < 0): no tangent point.
+  integer, parameter :: ray_away = 2
+  !> Hit, but the refinement (eqs. 34-41) did not reach the tolerance in the
+  !> iteration limit; `p` is the last estimate and still lies within the final bracket.
+  integer, parameter :: ray_hit_unconverged = 3
+  !> The line of sight has zero length or a non-finite component.
+  integer, parameter :: ray_bad_direction = 4
+  !> The spacecraft position is non-finite or at the planet centre.
+  integer, parameter :: ray_bad_position = 5
+  !> The spacecraft is below the DEM surface.
+  integer, parameter :: ray_inside = 6
+  !> A DEM record could not be read (dem_read_mode = 1) or is invalid.
+  integer, parameter :: ray_read_error = 7
+end module pi_status

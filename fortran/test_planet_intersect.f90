@@ -1,0 +1,97 @@
+!> test_planet_intersect: the paper's driver program, in the reconstructed
+!> legacy interface (docs/legacy-interface.md).
+!>
+!> Usage: test_planet_intersect DEM DEM_READ_MODE STEP_MODE RAYS [OUT]
+!>   DEM    the DEM as NAME, NAME.hdr or NAME.dem
+!>   RAYS   text file, one ray per line: sx sy sz lx ly lz (blank and # lines skipped)
+!>   OUT    output file (default: standard output)
+!> One line per ray: index, status, px py pz, tx ty tz, tcx tcy tcz, scx scy scz,
+!> emission (degrees). NaN where a quantity does not apply. Exit code 0 on
+!> success, 1 on bad arguments or input, 2 when the DEM cannot be used.
+program test_planet_intersect
+  use, intrinsic :: iso_fortran_env, only: real64, error_unit, output_unit
+  implicit none
+  integer, parameter :: dp = real64
+  character(len=4096) :: dem_name, rays_name, out_name, arg, line
+  integer :: read_mode, step_mode, n, k, u, ios, ierr, uout, nargs
+  real(dp), allocatable :: s(:, :), l(:, :), p(:, :), t(:, :), tc(:, :), sc(:, :), emission(:)
+  integer, allocatable :: istat(:)
+  real(dp) :: row(6)
+  external :: zcalc_planet_intersect
+
+  nargs = command_argument_count()
+  if (nargs < 4 .or. nargs > 5) then
+    write(error_unit, '(a)') 'usage: test_planet_intersect DEM DEM_READ_MODE STEP_MODE RAYS [OUT]'
+    call exit(1)
+  end if
+  call get_command_argument(1, dem_name)
+  call get_command_argument(2, arg)
+  read(arg, *, iostat=ios) read_mode
+  if (ios /= 0) call fail('DEM_READ_MODE must be 0 or 1, got "'//trim(arg)//'"', 1)
+  call get_command_argument(3, arg)
+  read(arg, *, iostat=ios) step_mode
+  if (ios /= 0) call fail('STEP_MODE must be 0 or 1, got "'//trim(arg)//'"', 1)
+  call get_command_argument(4, rays_name)
+  out_name = ''
+  if (nargs == 5) call get_command_argument(5, out_name)
+
+  ! count, then read the rays
+  open(newunit=u, file=rays_name, status='old', action='read', iostat=ios)
+  if (ios /= 0) call fail('cannot open rays file '//trim(rays_name), 1)
+  n = 0
+  do
+    read(u, '(a)', iostat=ios) line
+    if (ios /= 0) exit
+    if (is_data(line)) n = n + 1
+  end do
+  allocate(s(3, n), l(3, n), p(3, n), t(3, n), tc(3, n), sc(3, n), emission(n), istat(n))
+  rewind(u)
+  k = 0
+  do
+    read(u, '(a)', iostat=ios) line
+    if (ios /= 0) exit
+    if (.not. is_data(line)) cycle
+    k = k + 1
+    read(line, *, iostat=ios) row
+    if (ios /= 0) call fail('rays file '//trim(rays_name)//': cannot read six numbers from: '//trim(line), 1)
+    s(:, k) = row(1:3)
+    l(:, k) = row(4:6)
+  end do
+  close(u)
+
+  call zcalc_planet_intersect(n, s, l, trim(dem_name), read_mode, step_mode, p, t, tc, sc, &
+                              emission, istat, ierr)
+  if (ierr /= 0) then
+    write(arg, '(i0)') ierr
+    call fail('cannot use DEM '//trim(dem_name)//': status '//trim(arg)//' (see docs/legacy-interface.md)', 2)
+  end if
+
+  if (len_trim(out_name) > 0) then
+    open(newunit=uout, file=out_name, status='new', action='write', iostat=ios)
+    if (ios /= 0) call fail('cannot create output '//trim(out_name)//' (it must not exist)', 1)
+  else
+    uout = output_unit
+  end if
+  write(uout, '(a)') '# index status px py pz tx ty tz tcx tcy tcz scx scy scz emission_deg'
+  do k = 1, n
+    write(uout, '(i0, 1x, i0, 13(1x, es25.17e3))') k, istat(k), p(:, k), t(:, k), tc(:, k), sc(:, k), emission(k)
+  end do
+  if (uout /= output_unit) close(uout)
+
+contains
+
+  logical function is_data(text)
+    character(len=*), intent(in) :: text
+    character(len=len(text)) :: a
+    a = adjustl(text)
+    is_data = len_trim(a) > 0 .and. a(1:1) /= '#'
+  end function is_data
+
+  subroutine fail(message, code)
+    character(len=*), intent(in) :: message
+    integer, intent(in) :: code
+    write(error_unit, '(a)') 'test_planet_intersect: '//message
+    call exit(code)
+  end subroutine fail
+
+end program test_planet_intersect

@@ -1,0 +1,68 @@
+"""Status codes of the Fortran core and the exceptions they become.
+
+The table mirrors ``fortran/pi_status.f90``; ``tests/test_status.py`` checks
+that the compiled codes agree with it.
+"""
+
+from __future__ import annotations
+
+__all__ = ["DEMError", "STAT_MESSAGES", "RAY_STATUS", "RayStatus", "raise_for_stat"]
+
+
+class DEMError(ValueError):
+    """A DEM file pair or array is unusable; the message names it and the problem."""
+
+
+#: routine-level codes (``stat``) and what they mean
+STAT_MESSAGES = {
+    0: "success",
+    1: "the .hdr file cannot be opened or read",
+    2: "a header value (ppd, rmax, f, re) is missing or not a number",
+    3: "a header 'key = value' line has an unknown key or value",
+    4: "the .dem file cannot be opened",
+    5: "the .dem file size disagrees with the header",
+    6: "a read from the .dem file failed",
+    7: "ppd must be an integer >= 1",
+    8: "a radius exceeds rmax, or rmax is not positive",
+    9: "flattening f must be in [0, 1)",
+    10: "equatorial radius re must be positive and finite",
+    11: "a radius is NaN, infinite or not positive",
+    12: "step_mode, dem_read_mode or tangent mode out of range",
+    13: "the radii array shape disagrees with ppd",
+}
+
+
+class RayStatus:
+    """Per-ray status codes (``IntersectResult.status``)."""
+
+    HIT = 0  #: the ray hits the surface
+    LIMB = 1  #: the ray misses and passes the planet: tangent outputs set
+    AWAY = 2  #: the ray misses, pointing away from the planet: no tangent point
+    HIT_UNCONVERGED = 3  #: hit; refinement stopped at its iteration limit
+    BAD_DIRECTION = 4  #: line of sight zero or non-finite
+    BAD_POSITION = 5  #: spacecraft position non-finite or at the centre
+    INSIDE = 6  #: spacecraft below the DEM surface
+    READ_ERROR = 7  #: a DEM record could not be read or is invalid
+
+
+#: per-ray code -> short description (documented in docs/status-codes.md)
+RAY_STATUS = {
+    RayStatus.HIT: "hit",
+    RayStatus.LIMB: "limb (no hit, tangent point computed)",
+    RayStatus.AWAY: "pointing away (no hit, no tangent point)",
+    RayStatus.HIT_UNCONVERGED: "hit, refinement not converged to tolerance",
+    RayStatus.BAD_DIRECTION: "invalid line of sight",
+    RayStatus.BAD_POSITION: "invalid spacecraft position",
+    RayStatus.INSIDE: "spacecraft inside the surface",
+    RayStatus.READ_ERROR: "DEM record unreadable or invalid",
+}
+
+
+def raise_for_stat(stat: int, where: str) -> None:
+    """Raise :class:`DEMError` (or ValueError for mode errors) for a non-zero ``stat``."""
+    if stat == 0:
+        return
+    message = STAT_MESSAGES.get(int(stat), f"unknown status {stat}")
+    if stat == 12:
+        raise ValueError(f"{where}: {message}")
+    raise DEMError(f"{where}: {message} (status {stat})")

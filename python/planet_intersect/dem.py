@@ -1,0 +1,263 @@
+"""Digital elevation models: the ``.hdr``/``.dem`` file pair of DESIGN section 3.
+
+A DEM is a global grid of planetocentric radii at pixel centres,
+``radii[nlat, nlon]`` with ``nlat = 180*ppd`` rows (row 0 in the south, centre
+latitude ``-90 + 1/(2 ppd)``) and ``nlon = 360*ppd`` columns (column 0 centred
+at ``1/(2 ppd)`` degrees east). The header holds Table 1 of the paper: ``ppd``,
+``rmax``, ``f``, ``re``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ._status import DEMError, raise_for_stat
+
+__all__ = ["DEM", "read_header", "dem_paths"]
+
+_DTYPES = {"float32": 4, "float64": 8}
+_BYTEORDERS = {"little": "<", "big": ">"}
+_BLOCK_ROWS = 256  # rows checked at a time, bounding memory for large grids
+
+
+def dem_paths(path: str | os.PathLike) -> tuple[Path, Path]:
+    """The ``.hdr`` and ``.dem`` paths of a DEM given as NAME, NAME.hdr or NAME.dem."""
+    p = Path(path)
+    stem = p.with_suffix("") if p.suffix in (".hdr", ".dem") else p
+    return stem.with_name(stem.name + ".hdr"), stem.with_name(stem.name + ".dem")
+
+
+def read_header(hdr: str | os.PathLike) -> dict:
+    """Parse and check a ``.hdr`` file; return ppd, rmax, f, re, dtype, byteorder.
+
+    The first four non-comment lines hold the values of the paper's Table 1,
+    anything after the value being a comment; blank lines and lines starting
+    with ``#`` or ``!`` are skipped. ``key = value`` lines may follow:
+    ``dtype`` (float32, float64) and ``byteorder`` (little, big). Any other key
+    is an error.
+    """
+    hdr = Path(hdr)
+    if not hdr.is_file():
+        raise FileNotFoundError(f"DEM header {hdr}: no such file")
+    names = ("ppd", "rmax", "f", "re")
+    values: dict = {"dtype": "float32", "byteorder": "little"}
+    seen = 0
+    with open(hdr, encoding="utf-8", errors="replace") as fh:
+        for lineno, raw in enumerate(fh, start=1):
+            line = raw.strip()
+            if not line or line[0] in "#!":
+                continue
+            if seen < 4:
+                name = names[seen]
+                token = line.split()[0]
+                try:
+                    value = int(token) if name == "ppd" else float(token)
+                except ValueError:
+                    kind = "an integer" if name == "ppd" else "a number"
+                    raise DEMError(f"DEM header {hdr}, line {lineno}: {name} must be {kind}, got {token!r}") from None
+                values[name] = value
+                seen += 1
+                continue
+            if "=" not in line:
+                raise DEMError(f"DEM header {hdr}, line {lineno}: expected 'key = value' after the four values, got {line!r}")
+            key, _, rest = line.partition("=")
+            key = key.strip().lower()
+            word = rest.split()[0].lower() if rest.split() else ""
+            if key == "dtype" and word in _DTYPES:
+                values["dtype"] = word
+            elif key == "byteorder" and word in _BYTEORDERS:
+                values["byteorder"] = word
+            elif key in ("dtype", "byteorder"):
+                allowed = ", ".join(_DTYPES if key == "dtype" else _BYTEORDERS)
+                raise DEMError(f"DEM header {hdr}, line {lineno}: {key} must be one of {allowed}, got {word!r}")
+            else:
+                raise DEMError(f"DEM header {hdr}, line {lineno}: unknown key {key!r} (known: dtype, byteorder)")
+    if seen < 4:
+        raise DEMError(f"DEM header {hdr}: {names[seen]} is missing (the header needs ppd, rmax, f, re)")
+    _check_parameters(values["ppd"], values["rmax"], values["f"], values["re"], where=f"DEM header {hdr}")
+    return values
+
+
+def _check_parameters(ppd, rmax, f, re, where):
+    if ppd < 1:
+        raise DEMError(f"{where}: ppd must be >= 1, got {ppd}")
+    if not (math.isfinite(rmax) and rmax > 0):
+        raise DEMError(f"{where}: rmax must be positive and finite, got {rmax}")
+    if not (math.isfinite(f) and 0 <= f < 1):
+        raise DEMError(f"{where}: flattening f must be in [0, 1), got {f}")
+    if not (math.isfinite(re) and re > 0):
+        raise DEMError(f"{where}: equatorial radius re must be positive and finite, got {re}")
+
+
+def _check_radii(radii: np.ndarray, rmax: float, where: str) -> float:
+    """Check finite, positive radii not above rmax, block by block; return the maximum."""
+    top = -math.inf
+    for j in range(0, radii.shape[0], _BLOCK_ROWS):
+        block = np.asarray(radii[j:j + _BLOCK_ROWS], dtype=np.float64)
+        bad = ~np.isfinite(block)
+        if bad.any():
+            jj, ii = np.argwhere(bad)[0]
+            raise DEMError(f"{where}: radius at row {j + jj}, column {ii} is {block[jj, ii]} (NaN/Inf not allowed)")
+        if (block <= 0).any():
+            jj, ii = np.argwhere(block <= 0)[0]
+            raise DEMError(f"{where}: radius at row {j + jj}, column {ii} is {block[jj, ii]} (must be positive)")
+        top = max(top, float(block.max()))
+    if rmax is not None and top > rmax:
+        raise DEMError(f"{where}: rmax = {rmax} is below the largest radius {top}")
+    return top
+
+
+class DEM:
+    """A global DEM of planetocentric radii (see the module docstring for the grid).
+
+    Make one with :meth:`read` (a file pair, memory-mapped) or
+    :meth:`from_array`. Attributes: ``radii`` (``[nlat, nlon]``, a read-only
+    memory map for a file-backed DEM), ``ppd``, ``rmax``, ``f``, ``re`` and
+    ``path`` (the ``.hdr`` path, None in memory).
+    """
+
+    def __init__(self, radii: np.ndarray, ppd: int, rmax: float, f: float, re: float, path: Path | None = None):
+        self.radii = radii
+        self.ppd = int(ppd)
+        self.rmax = float(rmax)
+        self.f = float(f)
+        self.re = float(re)
+        self.path = path
+        self._radii64 = None
+
+    # construction -----------------------------------------------------------------
+    @classmethod
+    def read(cls, path: str | os.PathLike) -> "DEM":
+        """Read and validate a DEM file pair (NAME, NAME.hdr or NAME.dem).
+
+        The ``.dem`` is memory-mapped read-only; it is checked once here: size,
+        finite positive radii, ``rmax >= max(radii)``.
+        """
+        hdr, dem = dem_paths(path)
+        h = read_header(hdr)
+        if not dem.is_file():
+            raise FileNotFoundError(f"DEM data {dem}: no such file (header {hdr})")
+        ppd = h["ppd"]
+        nlat, nlon = 180 * ppd, 360 * ppd
+        itemsize = _DTYPES[h["dtype"]]
+        expected = nlat * nlon * itemsize
+        size = dem.stat().st_size
+        if size != expected:
+            raise DEMError(
+                f"DEM data {dem}: size {size} bytes, but the header (ppd = {ppd}, {h['dtype']}) "
+                f"needs {nlat} x {nlon} x {itemsize} = {expected} bytes")
+        dtype = np.dtype(h["dtype"]).newbyteorder(_BYTEORDERS[h["byteorder"]])
+        radii = np.memmap(dem, dtype=dtype, mode="r", shape=(nlat, nlon))
+        _check_radii(radii, h["rmax"], where=f"DEM data {dem}")
+        return cls(radii, ppd, h["rmax"], h["f"], h["re"], path=hdr)
+
+    @classmethod
+    def from_array(cls, radii, f: float = 0.0, re: float = 1.0, rmax: float | None = None) -> "DEM":
+        """A DEM in memory from ``radii[nlat, nlon]`` (row 0 south).
+
+        ``ppd`` follows from the shape (``nlat = 180 ppd``, ``nlon = 360 ppd``);
+        ``rmax`` defaults to the largest radius.
+        """
+        radii = np.asarray(radii)
+        if radii.ndim != 2 or radii.shape[1] != 2 * radii.shape[0] or radii.shape[0] % 180 or radii.shape[0] == 0:
+            raise DEMError(f"radii: shape {radii.shape} is not (180*ppd, 360*ppd) for an integer ppd >= 1")
+        if not np.issubdtype(radii.dtype, np.floating):
+            radii = radii.astype(np.float64)
+        ppd = radii.shape[0] // 180
+        top = _check_radii(radii, rmax, where="radii")
+        rmax = top if rmax is None else float(rmax)
+        _check_parameters(ppd, rmax, f, re, where="DEM.from_array")
+        return cls(radii, ppd, rmax, f, re, path=None)
+
+    # properties ---------------------------------------------------------------------
+    @property
+    def nlat(self) -> int:
+        """Number of latitude rows, 180 ppd."""
+        return 180 * self.ppd
+
+    @property
+    def nlon(self) -> int:
+        """Number of longitude columns, 360 ppd."""
+        return 360 * self.ppd
+
+    @property
+    def lat(self) -> np.ndarray:
+        """Row-centre latitudes, degrees (south to north)."""
+        return -90.0 + (np.arange(self.nlat) + 0.5) / self.ppd
+
+    @property
+    def lon(self) -> np.ndarray:
+        """Column-centre east longitudes, degrees."""
+        return (np.arange(self.nlon) + 0.5) / self.ppd
+
+    def __repr__(self) -> str:
+        where = f"path={str(self.path)!r}" if self.path else "in memory"
+        return f"DEM(ppd={self.ppd}, rmax={self.rmax}, f={self.f}, re={self.re}, {where})"
+
+    def radii64(self) -> np.ndarray:
+        """The grid as a C-ordered float64 array (converted once and kept)."""
+        if self._radii64 is None:
+            self._radii64 = np.ascontiguousarray(self.radii, dtype=np.float64)
+        return self._radii64
+
+    # output -------------------------------------------------------------------------
+    def write(self, path: str | os.PathLike, dtype: str | None = None, byteorder: str = "little",
+              overwrite: bool = False) -> Path:
+        """Write the file pair NAME.hdr + NAME.dem; return the ``.hdr`` path.
+
+        ``dtype`` defaults to the array's (float32 or float64); ``float32`` with
+        ``little`` byte order is what a reader knowing only Table 1 expects.
+        Existing files are never replaced unless ``overwrite=True``, and a DEM
+        is never written over the files it was read from.
+        """
+        hdr, dem = dem_paths(path)
+        if dtype is None:
+            dtype = "float32" if self.radii.dtype.itemsize == 4 else "float64"
+        if dtype not in _DTYPES:
+            raise ValueError(f"dtype must be one of {', '.join(_DTYPES)}, got {dtype!r}")
+        if byteorder not in _BYTEORDERS:
+            raise ValueError(f"byteorder must be one of {', '.join(_BYTEORDERS)}, got {byteorder!r}")
+        if self.path is not None and Path(self.path).resolve() == hdr.resolve():
+            raise FileExistsError(f"{hdr}: this DEM was read from there; write it elsewhere")
+        for p in (hdr, dem):
+            if p.exists() and not overwrite:
+                raise FileExistsError(f"{p} exists; pass overwrite=True to replace it")
+        data = np.asarray(self.radii, dtype=np.dtype(dtype).newbyteorder(_BYTEORDERS[byteorder]))
+        tmp_dem = dem.with_name(dem.name + ".part")
+        with open(tmp_dem, "wb") as fh:
+            for j in range(0, self.nlat, _BLOCK_ROWS):
+                fh.write(np.ascontiguousarray(data[j:j + _BLOCK_ROWS]).tobytes())
+        rmax = max(self.rmax, float(np.max(data)))
+        text = (f"{self.ppd:d}    ppd: pixels per degree\n"
+                f"{rmax!r}    rmax: maximum radius\n"
+                f"{self.f!r}    f: flattening of the reference spheroid\n"
+                f"{self.re!r}    re: equatorial radius of the spheroid\n"
+                f"dtype = {dtype}\n"
+                f"byteorder = {byteorder}\n")
+        tmp_hdr = hdr.with_name(hdr.name + ".part")
+        tmp_hdr.write_text(text, encoding="utf-8")
+        os.replace(tmp_dem, dem)
+        os.replace(tmp_hdr, hdr)
+        return hdr
+
+    # interpolation -------------------------------------------------------------------
+    def radius(self, lat, lon) -> np.ndarray:
+        """Bilinear DEM radius at planetocentric latitude/east longitude (degrees),
+        eqs. 2-12 (the paper's zdem_radius): longitude wraps, and within half a
+        pixel of a pole the pole carries the mean of the adjacent row."""
+        from . import _core
+
+        lat, lon = np.broadcast_arrays(np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64))
+        shape = lat.shape
+        flat_lat, flat_lon = lat.ravel(), lon.ravel()
+        if not (np.isfinite(flat_lat).all() and np.isfinite(flat_lon).all()):
+            raise ValueError("lat/lon: NaN or Inf values")
+        if (np.abs(flat_lat) > 90).any():
+            raise ValueError("lat: values outside [-90, 90] degrees")
+        r, stat = _core.core_radius_grid(self.radii64().T, self.ppd, np.radians(flat_lat), np.radians(flat_lon))
+        raise_for_stat(stat, "DEM.radius")
+        return r.reshape(shape)

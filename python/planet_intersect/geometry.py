@@ -1,0 +1,90 @@
+"""Viewing geometry helpers: detector lines of sight (eqs. 16-18), the reference
+spheroid (eqs. 46-50, 61) and closed-form ray intersections used as references."""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["detector_los", "spheroid_radius", "ray_spheroid_intersection", "latlon_of"]
+
+
+def _unit(v, name):
+    v = np.asarray(v, dtype=np.float64)
+    if v.shape != (3,):
+        raise ValueError(f"{name}: expected a 3-vector, got shape {v.shape}")
+    n = np.linalg.norm(v)
+    if not np.isfinite(n) or n == 0:
+        raise ValueError(f"{name}: must be finite and non-zero, got {v}")
+    return v / n
+
+
+def detector_los(l0, q, nh: int, nv: int, dh: float, dv: float) -> np.ndarray:
+    """Unit lines of sight of an ``nh x nv`` detector array, eqs. 16-18.
+
+    ``l0`` is the line of sight of the centre of the field of view, ``q`` the
+    direction of the array's vertical side, ``dh``/``dv`` the pixel spacing in
+    radians. ``h = l0 x q / |l0 x q|`` (eq. 16), ``v = q`` (eq. 17) and
+    ``l_ij = l0 + sin((i - (nh+1)/2) dh) h + sin((j - (nv+1)/2) dv) v`` (eq. 18),
+    normalised. Returns shape ``(nv*nh, 3)``, row-major in (j, i): pixel
+    ``(i, j)`` (1-based) is row ``(j-1)*nh + (i-1)``.
+    """
+    l0 = _unit(l0, "l0")
+    q = _unit(q, "q")
+    if int(nh) != nh or int(nv) != nv or nh < 1 or nv < 1:
+        raise ValueError(f"nh, nv: positive integers required, got {nh}, {nv}")
+    h = np.cross(l0, q)
+    hn = np.linalg.norm(h)
+    if hn < 1e-12:
+        raise ValueError("q is parallel to l0: the detector orientation is undefined")
+    h /= hn                                                    # eq. 16
+    v = q                                                      # eq. 17
+    i = np.arange(1, nh + 1)
+    j = np.arange(1, nv + 1)
+    jj, ii = np.meshgrid(j, i, indexing="ij")
+    los = (l0[None, None, :]
+           + np.sin((ii - (nh + 1) / 2) * dh)[..., None] * h
+           + np.sin((jj - (nv + 1) / 2) * dv)[..., None] * v)  # eq. 18
+    los /= np.linalg.norm(los, axis=-1, keepdims=True)
+    return los.reshape(nv * nh, 3)
+
+
+def spheroid_radius(lat_deg, f: float, re: float) -> np.ndarray:
+    """Radius of the spheroid (f, re) at planetocentric latitude, eq. 61."""
+    e2 = f * (2.0 - f)
+    c = np.cos(np.radians(lat_deg))
+    return np.sqrt(re * re * (1.0 - e2) / (1.0 - e2 * c * c))
+
+
+def ray_spheroid_intersection(s, l, f: float, re: float):
+    """First intersection of rays ``s + d l`` (d >= 0) with the spheroid; NaN where none.
+
+    Closed form: substitute the ray into eq. 49 and solve the quadratic in d.
+    Returns ``(points (N,3), d (N,))``.
+    """
+    s = np.atleast_2d(np.asarray(s, dtype=np.float64))
+    l = np.atleast_2d(np.asarray(l, dtype=np.float64))
+    l = l / np.linalg.norm(l, axis=1, keepdims=True)
+    w2 = 1.0 / (1.0 - f) ** 2
+    scale = np.array([1.0, 1.0, w2])
+    a = np.sum(l * l * scale, axis=1)
+    b = 2 * np.sum(s * l * scale, axis=1)
+    c = np.sum(s * s * scale, axis=1) - re * re
+    disc = b * b - 4 * a * c
+    with np.errstate(invalid="ignore"):
+        sq = np.sqrt(disc)
+        # numerically stable root of the smaller d
+        qq = -0.5 * (b + np.sign(b) * sq)
+        d1 = qq / a
+        d2 = c / qq
+    d = np.where(d1 < d2, d1, d2)
+    d = np.where((disc >= 0) & (d >= 0), d, np.nan)
+    return s + d[:, None] * l, d
+
+
+def latlon_of(x) -> tuple[np.ndarray, np.ndarray]:
+    """Planetocentric latitude and east longitude in [0, 360) of points (N,3), degrees."""
+    x = np.atleast_2d(np.asarray(x, dtype=np.float64))
+    lat = np.degrees(np.arctan2(x[:, 2], np.hypot(x[:, 0], x[:, 1])))
+    lon = np.degrees(np.arctan2(x[:, 1], x[:, 0])) % 360.0
+    lon = np.where(lon >= 360.0, 0.0, lon)
+    return lat, lon

@@ -1,0 +1,190 @@
+"""``intersect``: where each line of sight meets the DEM surface, or passes it.
+
+The work is done by the Fortran core (``planet_intersect._core``), a port of
+Teanby (2008) section 2.3-2.4.1; this module validates input, broadcasts
+vectors, and turns the core's status codes into exceptions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from ._status import DEMError, RayStatus, raise_for_stat
+from .dem import DEM
+
+__all__ = ["intersect", "IntersectResult"]
+
+_TANGENT = {"paper": 0, "exact": 1}
+
+
+@dataclass
+class IntersectResult:
+    """Per-ray results of :func:`intersect`; arrays of length N (vectors (N, 3)).
+
+    Angles in degrees, lengths in the DEM's units; NaN where a quantity does not
+    apply (surface quantities for rays that miss, tangent quantities for rays
+    that hit or point away).
+    """
+
+    hit: np.ndarray  #: True where the ray meets the surface
+    p: np.ndarray  #: hit point (eq. 35 at convergence)
+    lat: np.ndarray  #: planetocentric latitude of p (eq. 42)
+    lon: np.ndarray  #: east longitude of p in [0, 360) (eq. 43)
+    radius: np.ndarray  #: |p| (eq. 44)
+    altitude: np.ndarray  #: radius minus the spheroid radius at lat (eq. 61); NaN without a spheroid
+    emission: np.ndarray  #: angle between -l and the spheroid normal at p (eqs. 45, 50)
+    t: np.ndarray  #: spherical tangent point (eq. 20), limb rays
+    tc: np.ndarray  #: tangent point on the line for the spheroid (eq. 57)
+    sc: np.ndarray  #: point on the spheroid below tc
+    tangent_lat: np.ndarray  #: planetocentric latitude of sc (eq. 59)
+    tangent_lon: np.ndarray  #: east longitude of sc (eq. 60)
+    tangent_altitude: np.ndarray  #: height of tc above the local DEM surface (eq. 63)
+    tangent_height: np.ndarray  #: signed distance tc - sc above the spheroid (eq. 58)
+    status: np.ndarray  #: per-ray code, see :class:`RayStatus`
+    nsteps: np.ndarray  #: test points evaluated along each ray
+
+    def __len__(self) -> int:
+        return len(self.status)
+
+    def to_xarray(self):
+        """The results as an :class:`xarray.Dataset` with dimensions ``ray`` and ``xyz``."""
+        import xarray as xr
+
+        data = {}
+        for fld in fields(self):
+            value = getattr(self, fld.name)
+            dims = ("ray", "xyz") if value.ndim == 2 else ("ray",)
+            data[fld.name] = (dims, value)
+        ds = xr.Dataset(data, coords={"ray": np.arange(len(self)), "xyz": ["x", "y", "z"]})
+        ds.attrs["status_codes"] = "; ".join(f"{k}: {v}" for k, v in _ray_status_items())
+        ds.attrs["angles"] = "degrees; latitudes planetocentric, longitudes east in [0, 360)"
+        return ds
+
+    def to_table(self) -> dict:
+        """Flat columns (vectors split into _x/_y/_z) for CSV export."""
+        cols = {}
+        for fld in fields(self):
+            value = getattr(self, fld.name)
+            if value.ndim == 2:
+                for k, axis in enumerate("xyz"):
+                    cols[f"{fld.name}_{axis}"] = value[:, k]
+            else:
+                cols[fld.name] = value
+        return cols
+
+
+def _ray_status_items():
+    from ._status import RAY_STATUS
+
+    return RAY_STATUS.items()
+
+
+def _as_vectors(v, name: str) -> np.ndarray:
+    try:
+        v = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: not an array of numbers ({exc})") from None
+    if v.ndim == 1:
+        v = v[None, :]
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise ValueError(f"{name}: expected shape (3,) or (N, 3), got {np.shape(v)}")
+    bad = ~np.isfinite(v).all(axis=1)
+    if bad.any():
+        raise ValueError(f"{name}[{int(np.argmax(bad))}] has NaN or Inf components: {v[np.argmax(bad)]}")
+    zero = np.linalg.norm(v, axis=1) == 0
+    if zero.any():
+        raise ValueError(f"{name}[{int(np.argmax(zero))}] has zero length")
+    return v
+
+
+def _check_mode(value, name: str) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value not in (0, 1):
+        raise ValueError(f"{name} must be 0 or 1, got {value!r}")
+    return int(value)
+
+
+def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
+              tangent: str = "exact") -> IntersectResult:
+    """Intersect lines of sight with a DEM (the paper's zcalc_planet_intersect).
+
+    Parameters
+    ----------
+    dem : DEM
+        The surface (see :class:`DEM`); lengths in its units.
+    s : array (3,) or (N, 3)
+        Spacecraft position(s), planet-fixed Cartesian (x to lat 0 lon 0, z north).
+        One position broadcasts over all rays.
+    l : array (3,) or (N, 3)
+        Line-of-sight direction(s), any non-zero length (normalised here).
+    step_mode : 0 or 1
+        1: angular step ``cos(lat)/(2 ppd)`` degrees (eq. 23); 0: without ``cos(lat)``.
+    dem_read_mode : 0 or 1
+        0: the whole grid in memory; 1: radii read record by record from the
+        ``.dem`` file by the Fortran core (file-backed DEMs only). Bit-identical results.
+    tangent : "exact" or "paper"
+        Spheroid tangent point of limb rays: "exact" is the nearest point between
+        line and spheroid; "paper" the construction of eqs. 55-58, which agrees
+        when the line touches the spheroid (docs/paper-notes.md gives the difference).
+
+    Returns
+    -------
+    IntersectResult
+
+    Raises
+    ------
+    ValueError
+        Bad shapes, NaN/Inf or zero-length vectors, modes out of range, or a
+        spacecraft below the surface.
+    DEMError
+        The DEM file cannot be used (mode 1).
+    """
+    from . import _core
+
+    if not isinstance(dem, DEM):
+        raise TypeError(f"dem must be a planet_intersect.DEM, got {type(dem).__name__}")
+    step_mode = _check_mode(step_mode, "step_mode")
+    dem_read_mode = _check_mode(dem_read_mode, "dem_read_mode")
+    if tangent not in _TANGENT:
+        raise ValueError(f"tangent must be 'exact' or 'paper', got {tangent!r}")
+    s = _as_vectors(s, "s")
+    l = _as_vectors(l, "l")
+    if len(s) != len(l) and len(s) != 1 and len(l) != 1:
+        raise ValueError(f"s and l: {len(s)} positions do not broadcast against {len(l)} lines of sight")
+    n = max(len(s), len(l))
+    s = np.ascontiguousarray(np.broadcast_to(s, (n, 3)))
+    l = np.ascontiguousarray(np.broadcast_to(l, (n, 3)))
+
+    if dem_read_mode == 0:
+        out = _core.core_intersect_grid(dem.radii64().T, dem.ppd, dem.rmax, dem.f, dem.re,
+                                        s.T, l.T, step_mode, _TANGENT[tangent])
+        where = "intersect"
+    else:
+        if dem.path is None:
+            raise ValueError("dem_read_mode=1 reads records from the DEM's file: "
+                             "this DEM is in memory (write it with dem.write() and DEM.read() it)")
+        out = _core.core_intersect_file(str(dem.path), 1, s.T, l.T, step_mode, _TANGENT[tangent])
+        where = f"intersect (dem_read_mode=1, {dem.path})"
+    p, t, tc, sc, scal, status, nsteps, stat = out
+    raise_for_stat(stat, where)
+
+    inside = np.flatnonzero(status == RayStatus.INSIDE)
+    if inside.size:
+        k = int(inside[0])
+        raise ValueError(f"s[{k}] = {s[k]} is inside the planet surface "
+                         f"({inside.size} ray(s) affected): the spacecraft must be above the DEM")
+    unreadable = np.flatnonzero(status == RayStatus.READ_ERROR)
+    if unreadable.size:
+        raise DEMError(f"{where}: a DEM record needed by ray {int(unreadable[0])} could not be read or is invalid")
+
+    lat, lon = np.degrees(scal[0]), np.degrees(scal[1])
+    tlat, tlon = np.degrees(scal[5]), np.degrees(scal[6])
+    return IntersectResult(
+        hit=(status == RayStatus.HIT) | (status == RayStatus.HIT_UNCONVERGED),
+        p=p.T.copy(), lat=lat, lon=lon, radius=scal[2].copy(), altitude=scal[3].copy(),
+        emission=np.degrees(scal[4]),
+        t=t.T.copy(), tc=tc.T.copy(), sc=sc.T.copy(),
+        tangent_lat=tlat, tangent_lon=tlon, tangent_altitude=scal[7].copy(), tangent_height=scal[8].copy(),
+        status=status.astype(np.int8), nsteps=nsteps.astype(np.int32),
+    )
