@@ -15,11 +15,12 @@
 !>
 !> Reentrant: a `dem_t` holds no hidden global state; several may be open at
 !> once, and one may be shared by threads (mode 0 only reads memory; mode 1
-!> reads through its own unit, one positioned READ per record).
+!> reads records with POSIX pread through its own descriptor, see pi_io).
 module pi_dem
   use pi_kinds, only: dp, sp, i1, i4, i8
   use pi_status
   use pi_vector, only: pi, rad, deg, lon_diff
+  use pi_io, only: io_open, io_close, io_size, io_read
   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
   implicit none
   private
@@ -41,8 +42,8 @@ module pi_dem
     real(dp), pointer, contiguous :: radii(:, :) => null()
     !> True when `radii` was allocated here (and is freed by dem_close).
     logical :: owns_radii = .false.
-    !> Mode 1: unit of the open `.dem` file, bytes per record, byte swap needed.
-    integer :: unit = -1
+    !> Mode 1: descriptor of the open `.dem` file (pi_io), bytes per record, byte swap needed.
+    integer :: fd = -1
     integer :: itemsize = 4
     logical :: swap = .false.
     !> Mean radius of the southernmost and northernmost rows (section 2.2,
@@ -82,22 +83,43 @@ contains
     logical, intent(out) :: swap
     integer, intent(out) :: stat
     character(len=1024) :: line
-    character(len=:), allocatable :: key, val
-    integer :: u, ios, nval, k
-    logical :: big
+    character(len=:), allocatable :: key, val, text
+    integer :: fd, ios, nval, k, pos, eol
+    integer(i8) :: nbytes
+    integer(i1), allocatable :: raw(:)
+    logical :: big, ok
 
     ppd = 0; rmax = 0.0_dp; f = 0.0_dp; re = 1.0_dp; itemsize = 4; big = .false.
     swap = .false.
     stat = stat_ok
-    open(newunit=u, file=hdr, status='old', action='read', form='formatted', iostat=ios)
-    if (ios /= 0) then
+    ! read the whole header with pread (no Fortran unit: safe in threads, see pi_io)
+    fd = io_open(hdr)
+    if (fd < 0) then
       stat = stat_hdr_open
       return
     end if
+    nbytes = io_size(fd)
+    ok = nbytes >= 0 .and. nbytes < 1000000_i8
+    if (ok) then
+      allocate(raw(nbytes))
+      call io_read(fd, 0_i8, raw, ok)
+    end if
+    call io_close(fd)
+    if (.not. ok) then
+      stat = stat_hdr_open
+      return
+    end if
+    allocate(character(len=size(raw)) :: text)
+    text = transfer(raw, text)
     nval = 0
-    do
-      read(u, '(a)', iostat=ios) line
-      if (ios /= 0) exit
+    pos = 1
+    do while (pos <= len(text))
+      eol = index(text(pos:), achar(10))
+      if (eol == 0) eol = len(text) - pos + 2
+      line = text(pos:pos + eol - 2)
+      pos = pos + eol
+      k = index(line, achar(13))          ! tolerate CRLF line ends
+      if (k > 0) line(k:) = ' '
       line = adjustl(line)
       if (len_trim(line) == 0) cycle
       if (line(1:1) == '#' .or. line(1:1) == '!') cycle
@@ -150,7 +172,6 @@ contains
         if (stat /= stat_ok) exit
       end if
     end do
-    close(u)
     if (stat /= stat_ok) return
     if (nval < 4) then
       stat = stat_hdr_value
@@ -183,7 +204,7 @@ contains
     integer, intent(out) :: stat
     character(len=:), allocatable :: hdr, demfile
     integer(i8) :: fsize
-    integer :: ios, j
+    integer :: j
     real(dp), allocatable :: row(:)
 
     if (read_mode /= 0 .and. read_mode /= 1) then
@@ -197,14 +218,13 @@ contains
     dem%nlat = 180*dem%ppd
     dem%read_mode = read_mode
 
-    open(newunit=dem%unit, file=demfile, status='old', action='read', access='stream', &
-         form='unformatted', iostat=ios)
-    if (ios /= 0) then
-      dem%unit = -1
+    dem%fd = io_open(demfile)
+    if (dem%fd < 0) then
+      dem%fd = -1
       stat = stat_dem_open
       return
     end if
-    inquire(unit=dem%unit, size=fsize)
+    fsize = io_size(dem%fd)
     if (fsize /= int(dem%nlon, i8)*int(dem%nlat, i8)*int(dem%itemsize, i8)) then
       stat = stat_dem_size
       call dem_close(dem)
@@ -218,8 +238,8 @@ contains
         call read_records(dem, int(j-1, i8)*dem%nlon + 1, dem%nlon, dem%radii(:, j), stat)
         if (stat /= stat_ok) exit
       end do
-      close(dem%unit)
-      dem%unit = -1
+      call io_close(dem%fd)
+      dem%fd = -1
       if (stat /= stat_ok) then
         call dem_close(dem)
         return
@@ -279,8 +299,8 @@ contains
   !> Release a DEM: close its file, free a grid it owns.
   subroutine dem_close(dem)
     type(dem_t), intent(inout) :: dem
-    if (dem%unit /= -1) close(dem%unit)
-    dem%unit = -1
+    if (dem%fd /= -1) call io_close(dem%fd)
+    dem%fd = -1
     if (dem%owns_radii .and. associated(dem%radii)) deallocate(dem%radii)
     dem%radii => null()
     dem%owns_radii = .false.
@@ -383,12 +403,13 @@ contains
     real(dp), intent(out) :: values(n)
     integer, intent(out) :: stat
     integer(i1) :: bytes(dem%itemsize*n)
-    integer :: ios, k, m
+    integer :: k, m
+    logical :: ok
 
     stat = stat_ok
     m = dem%itemsize
-    read(dem%unit, pos=(first - 1)*m + 1, iostat=ios) bytes
-    if (ios /= 0) then
+    call io_read(dem%fd, (first - 1)*m, bytes, ok)
+    if (.not. ok) then
       values = 0.0_dp
       stat = stat_dem_read
       return

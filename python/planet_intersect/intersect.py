@@ -86,10 +86,11 @@ def _as_vectors(v, name: str) -> np.ndarray:
         v = np.asarray(v, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{name}: not an array of numbers ({exc})") from None
+    shape = v.shape
     if v.ndim == 1:
         v = v[None, :]
     if v.ndim != 2 or v.shape[1] != 3:
-        raise ValueError(f"{name}: expected shape (3,) or (N, 3), got {np.shape(v)}")
+        raise ValueError(f"{name}: expected shape (3,) or (N, 3), got {shape}")
     bad = ~np.isfinite(v).all(axis=1)
     if bad.any():
         raise ValueError(f"{name}[{int(np.argmax(bad))}] has NaN or Inf components: {v[np.argmax(bad)]}")

@@ -1,0 +1,36 @@
+/* Positioned reads of DEM records for the Fortran core (pi_io.f90).
+ *
+ * POSIX pread() reads at an offset without moving a shared file position, so
+ * any number of threads (OpenMP or Python) may read one descriptor, and one
+ * file may be open several times at once -- which Fortran units forbid.
+ * Each function returns a negative value on failure and never prints.
+ */
+#define _FILE_OFFSET_BITS 64
+#include <fcntl.h>
+#include <stdint.h>
+#include <sys/stat.h>
+#include <sys/types.h>
+#include <unistd.h>
+
+int pi_io_open(const char *path) { return open(path, O_RDONLY); }
+
+int pi_io_close(int fd) { return close(fd); }
+
+int64_t pi_io_size(int fd) {
+  struct stat st;
+  if (fstat(fd, &st) != 0) return -1;
+  return (int64_t)st.st_size;
+}
+
+/* Read exactly n bytes at byte offset `offset`; 0 on success, -1 otherwise. */
+int pi_io_pread(int fd, void *buf, int64_t n, int64_t offset) {
+  char *p = (char *)buf;
+  while (n > 0) {
+    ssize_t got = pread(fd, p, (size_t)n, (off_t)offset);
+    if (got <= 0) return -1;
+    p += got;
+    n -= got;
+    offset += got;
+  }
+  return 0;
+}

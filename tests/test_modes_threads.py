@@ -1,0 +1,53 @@
+"""Same answers everywhere: dem_read_mode 0 and 1 bit-identical; threads agree with one."""
+
+import threading
+
+import numpy as np
+import pytest
+
+import planet_intersect as pi
+
+from conftest import mixed_rays
+
+
+@pytest.mark.parametrize("step_mode", [0, 1])
+@pytest.mark.parametrize("tangent", ["exact", "paper"])
+def test_read_modes_bit_identical(rough_file, step_mode, tangent):
+    s, l, _ = mixed_rays(rough_file, 4000, seed=77)
+    a = pi.intersect(rough_file, s, l, step_mode=step_mode, dem_read_mode=0, tangent=tangent)
+    b = pi.intersect(rough_file, s, l, step_mode=step_mode, dem_read_mode=1, tangent=tangent)
+    for name in a.__dataclass_fields__:
+        x, y = getattr(a, name), getattr(b, name)
+        assert np.array_equal(x, y, equal_nan=True), name     # bit for bit, NaN where NaN
+
+
+def test_float32_file_mode_0_and_1_identical(tmp_path, rough):
+    hdr = rough.write(tmp_path / "f32", dtype="float32", byteorder="big")
+    dem = pi.DEM.read(hdr)
+    s, l, _ = mixed_rays(dem, 2000, seed=8)
+    a = pi.intersect(dem, s, l, dem_read_mode=0)
+    b = pi.intersect(dem, s, l, dem_read_mode=1)
+    assert np.array_equal(a.p, b.p, equal_nan=True) and np.array_equal(a.status, b.status)
+    assert np.array_equal(a.tangent_altitude, b.tangent_altitude, equal_nan=True)
+
+
+def test_two_threads_give_the_same_results_as_one(rough_file):
+    s, l, _ = mixed_rays(rough_file, 20000, seed=99)
+    single = {m: pi.intersect(rough_file, s, l, dem_read_mode=m) for m in (0, 1)}
+    out = {}
+    barrier = threading.Barrier(4)
+
+    def work(key, mode):
+        barrier.wait()
+        out[key] = pi.intersect(rough_file, s, l, dem_read_mode=mode)
+
+    threads = [threading.Thread(target=work, args=((k, m), m)) for k in range(2) for m in (0, 1)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(out) == 4
+    for (k, m), res in out.items():
+        assert np.array_equal(res.p, single[m].p, equal_nan=True)
+        assert np.array_equal(res.tc, single[m].tc, equal_nan=True)
+        assert np.array_equal(res.status, single[m].status)
