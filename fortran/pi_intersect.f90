@@ -224,21 +224,31 @@ contains
   !> the chord between the surface points below ga and gb (eq. 34, v in [0, 1))
   !> and keeps the half that still brackets the crossing (eqs. 36-41), until
   !> |r(p') - p'| <= refine_tol_rel*rmax or refine_maxit iterations [note 5].
+  !> Safeguard: when the same end has been kept twice running (false position
+  !> stalling at a crease of the bilinear surface), the next p' is the bracket
+  !> midpoint (v = 1/2) [note 5].
   subroutine refine(dem, l, ga_in, gna_in, ra_in, gb_in, gnb_in, rb_in, dg_in, res, stat)
     type(dem_t), intent(in) :: dem
     real(dp), intent(in) :: l(3), ga_in(3), gna_in, ra_in, gb_in(3), gnb_in, rb_in, dg_in
     type(ray_result_t), intent(inout) :: res
     integer, intent(out) :: stat
     real(dp) :: ga(3), gna, ra, gnb, rb, dg, v, pp(3), pn, rp, lat, lon, tol
-    integer :: it
+    integer :: it, side, last_side
+    logical :: stalled
 
     ga = ga_in; gna = gna_in; ra = ra_in
     gnb = gnb_in; rb = rb_in; dg = dg_in
     tol = refine_tol_rel*dem%rmax
     res%status = ray_hit_unconverged
     pp = gb_in
+    last_side = 0
+    stalled = .false.
     do it = 1, refine_maxit
-      v = rb*(ra - gna)/(gnb*ra - gna*rb)          ! eq. 34
+      if (stalled) then
+        v = 0.5_dp
+      else
+        v = rb*(ra - gna)/(gnb*ra - gna*rb)        ! eq. 34
+      end if
       pp = ga + v*dg*l                             ! eq. 35
       pn = norm2(pp)
       call latlon_of(pp, lat, lon)
@@ -252,10 +262,14 @@ contains
       if (rp > pn) then                            ! p' below the surface
         gnb = pn; rb = rp                          ! eqs. 36-37
         dg = v*dg                                  ! eq. 38
+        side = 1
       else                                         ! p' above the surface
         ga = pp; gna = pn; ra = rp                 ! eqs. 39-40
         dg = (1.0_dp - v)*dg                       ! eq. 41
+        side = 2
       end if
+      stalled = side == last_side
+      last_side = side
     end do
     res%p = pp
   end subroutine refine

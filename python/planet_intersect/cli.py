@@ -136,8 +136,8 @@ def _run(args) -> int:
     try:
         res.to_xarray().to_netcdf(out / "results.nc", engine="h5netcdf")
         written.append(out / "results.nc")
-    except ImportError:
-        pass
+    except ImportError as exc:
+        print(f"  (no NetCDF output: {exc}; pip install 'planet-intersect[xarray]')")
     print(f"{len(res)} rays: {int(res.hit.sum())} hit, {int((res.status == 1).sum())} limb, "
           f"{int((res.status == 2).sum())} away; wrote {', '.join(map(str, written))}")
     return 0

@@ -205,11 +205,14 @@ def intersect(radii, ppd, rmax, f, re, s, l, step_mode=1):
     status = out["status"]
     status[hit] = HIT_UNCONVERGED
     todo = hit.copy()
+    kept = np.zeros(n, dtype=np.int64)      # which end was replaced last: 1 the lower, 2 the upper
+    halve = np.zeros(n, bool)               # the same end kept twice running: try the midpoint
     for _ in range(REFINE_MAXIT):
         k = np.flatnonzero(todo)
         if k.size == 0:
             break
         v = rb[k] * (ra[k] - ga_len[k]) / (gb_len[k] * ra[k] - ga_len[k] * rb[k])   # eq. 34
+        v = np.where(halve[k], 0.5, v)
         pp = ga[k] + (v * dg_b[k])[:, None] * l[k]                                 # eq. 35
         pn = np.linalg.norm(pp, axis=1)
         rp = dem_radius(grid, *_latlon(pp))
@@ -222,6 +225,9 @@ def intersect(radii, ppd, rmax, f, re, s, l, step_mode=1):
         ku, ko = k[under], k[over]
         gb_len[ku] = pn[under]; rb[ku] = rp[under]; dg_b[ku] = v[under] * dg_b[ku]          # eqs. 36-38
         ga[ko] = pp[over]; ga_len[ko] = pn[over]; ra[ko] = rp[over]; dg_b[ko] = (1 - v[over]) * dg_b[ko]  # eqs. 39-41
+        side = np.where(under, 1, 2)
+        halve[k] = side == kept[k]
+        kept[k] = side
 
     # hit properties, eqs. 42-50
     e2 = f * (2.0 - f)
