@@ -73,3 +73,39 @@ def test_errors_are_one_line(tmp_path, rough, capsys, monkeypatch, args, message
     assert main(args) == 2
     err = capsys.readouterr().err
     assert message in err and err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_examples_and_import_mola_commands(tmp_path):
+    from conftest import SHARED_DATA, shared_data_or_skip
+
+    src = shared_data_or_skip("mars_mola_megdr_4ppd", "mars_radius_4ppd_megt_plus_areoid.i2be")
+    r = run_cli("import-mola", tmp_path / "mola4", "--radius", src)
+    assert r.returncode == 0 and "mola4.hdr" in r.stdout
+    r = run_cli("import-mola", tmp_path / "mola4", "--radius", src)
+    assert r.returncode == 2 and "exists; pass overwrite=True" in r.stderr
+    r = run_cli("examples", "olympus", "--dem", tmp_path / "mola4.hdr", "--out", tmp_path / "ex")
+    assert r.returncode == 0, r.stderr
+    assert "10201 of 10201 pixels on the surface" in r.stdout
+    assert (tmp_path / "ex" / "run-001" / "olympus_fig8.png").stat().st_size > 50000
+    r = run_cli("examples", "limb", "--mola", src, "--out", tmp_path / "ex")
+    assert r.returncode == 0 and "195 of them miss the smooth spheroid" in r.stdout
+    assert (tmp_path / "ex" / "run-002" / "limb_fig9.png").exists()
+    r = run_cli("examples", "olympus", "--mola", tmp_path / "none.img")
+    assert r.returncode == 2 and "none.img is missing" in r.stderr
+
+
+def test_run_in_chunks_equals_one_call(rough):
+    from planet_intersect.cli import intersect_in_chunks
+
+    from conftest import mixed_rays
+
+    s, l, _ = mixed_rays(rough, 2500, seed=1)
+    whole = pi.intersect(rough, s, l)
+    parts = intersect_in_chunks(rough, s, l, chunk=1000)
+    assert np.array_equal(whole.p, parts.p, equal_nan=True) and np.array_equal(whole.status, parts.status)
+
+
+def test_help_for_every_subcommand():
+    for sub in ("demo", "run", "examples", "import-mola", "fetch-mola"):
+        r = run_cli(sub, "--help")
+        assert r.returncode == 0 and "usage: planet-intersect " + sub in r.stdout

@@ -2,6 +2,9 @@
 
     planet-intersect demo [--out DIR] [--ppd N] [--pixels N]
     planet-intersect run DEM RAYS [--out DIR] [--step-mode 0|1] [--dem-read-mode 0|1] [--tangent exact|paper]
+    planet-intersect examples olympus|limb [--dem HDR | --mola IMG] [--out DIR]
+    planet-intersect import-mola OUT (--radius IMG | --topography IMG --areoid IMG) [--overwrite]
+    planet-intersect fetch-mola DEST [--product megr90n000cb|megr90n000eb]
 
 Errors print one line on standard error and exit with status 2.
 """
@@ -124,12 +127,51 @@ def _read_rays(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return data[:, :3], data[:, 3:]
 
 
+class Progress:
+    """A one-line progress bar on standard error (silent for work that is quick)."""
+
+    def __init__(self, total: int, label: str, min_total: int = 1):
+        self.total, self.label = total, label
+        self.show = total >= min_total
+        self.t0 = time.perf_counter()
+
+    def __call__(self, done: int, total: int | None = None) -> None:
+        if not self.show:
+            return
+        total = total or self.total
+        frac = min(done / total, 1.0) if total else 1.0
+        bar = "#" * int(30 * frac)
+        sys.stderr.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}% ({time.perf_counter() - self.t0:.1f} s)")
+        if frac >= 1.0:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+
+def intersect_in_chunks(dem, s, l, chunk: int = 200_000, **kwargs):
+    """intersect() over many rays in chunks, with a progress bar when there is more than one."""
+    from . import intersect
+    from .intersect import IntersectResult
+
+    n = max(len(s), len(l))
+    s = np.broadcast_to(s, (n, 3))
+    l = np.broadcast_to(l, (n, 3))
+    bar = Progress(n, "rays", min_total=chunk + 1)
+    parts = []
+    for a in range(0, n, chunk):
+        parts.append(intersect(dem, s[a:a + chunk], l[a:a + chunk], **kwargs))
+        bar(min(a + chunk, n))
+    if len(parts) == 1:
+        return parts[0]
+    return IntersectResult(**{k: np.concatenate([getattr(p, k) for p in parts]) for k in parts[0].__dataclass_fields__})
+
+
 def _run(args) -> int:
-    from . import DEM, intersect
+    from . import DEM
 
     dem = DEM.read(args.dem)
     s, l = _read_rays(Path(args.rays))
-    res = intersect(dem, s, l, step_mode=args.step_mode, dem_read_mode=args.dem_read_mode, tangent=args.tangent)
+    res = intersect_in_chunks(dem, s, l, step_mode=args.step_mode, dem_read_mode=args.dem_read_mode,
+                              tangent=args.tangent)
     out = _new_run_dir(Path(args.out))
     write_csv(out / "results.csv", res)
     written = [out / "results.csv"]
@@ -140,6 +182,68 @@ def _run(args) -> int:
         print(f"  (no NetCDF output: {exc}; pip install 'planet-intersect[xarray]')")
     print(f"{len(res)} rays: {int(res.hit.sum())} hit, {int((res.status == 1).sum())} limb, "
           f"{int((res.status == 2).sum())} away; wrote {', '.join(map(str, written))}")
+    return 0
+
+
+def _example_dem(args):
+    import os
+
+    from . import DEM
+    from .mola import mola_dem
+
+    if args.dem:
+        return DEM.read(args.dem), str(args.dem)
+    path = Path(args.mola) if args.mola else (
+        Path(os.environ.get("PI_SHARED_DATA", "../shared/data")) / "mars_mola_megdr_4ppd" /
+        "mars_radius_4ppd_megt_plus_areoid.i2be")
+    if not path.is_file():
+        raise CLIError(f"no Mars DEM: {path} is missing; give --dem NAME.hdr or --mola MEGDR.img "
+                       f"(planet-intersect fetch-mola DEST downloads one)")
+    return mola_dem(path), str(path)
+
+
+def _examples(args) -> int:
+    from . import examples
+
+    dem, source = _example_dem(args)
+    out = _new_run_dir(Path(args.out))
+    if args.which == "olympus":
+        ex = examples.olympus(dem)
+        examples.plot_olympus(ex, out / "olympus_fig8.png")
+        write_csv(out / "olympus_pixels.csv", ex.res)
+        print(f"example 1 (Fig. 8) on {source}: {int(ex.res.hit.sum())} of {ex.res.status.size} pixels on the surface, "
+              f"altitude {np.nanmin(ex.z):.2f} .. {np.nanmax(ex.z):.2f} km above the mean surface\n"
+              f"  lapse rate {ex.lapse_fit:.4f} +- {ex.lapse_se:.4f} K/km (true {ex.lapse}), "
+              f"T0 {ex.T0_fit:.3f} +- {ex.T0_se:.3f} K (true {ex.T0})\n  wrote {out}/olympus_fig8.png, olympus_pixels.csv")
+    else:
+        ex = examples.limb(dem)
+        examples.plot_limb(ex, out / "limb_fig9.png")
+        write_csv(out / "limb_pixels.csv", ex.res)
+        status = ex.grid("status")
+        mountain = int(((status == 0) & ex.spheroid_miss).sum())
+        print(f"example 2 (Fig. 9) on {source}: {ex.nframes} frames x {ex.npix} pixels, {int((status == 0).sum())} hit "
+              f"the surface, {mountain} of them miss the smooth spheroid but hit the mountain\n"
+              f"  wrote {out}/limb_fig9.png, limb_pixels.csv")
+    return 0
+
+
+def _import_mola(args) -> int:
+    from .mola import import_mola
+
+    if bool(args.radius) == bool(args.topography):
+        raise CLIError("give --radius IMG, or --topography IMG with --areoid IMG")
+    hdr = import_mola(args.out, radius=args.radius, topography=args.topography, areoid=args.areoid,
+                      overwrite=args.overwrite)
+    print(f"wrote {hdr} and {hdr.with_suffix('.dem')}")
+    return 0
+
+
+def _fetch_mola(args) -> int:
+    from .mola import fetch_mola
+
+    bar = Progress(1, f"downloading {args.product}")
+    hdr = fetch_mola(args.dest, product=args.product, progress=bar)
+    print(f"wrote {hdr} and {hdr.with_suffix('.dem')}")
     return 0
 
 
@@ -160,6 +264,24 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--dem-read-mode", type=int, choices=(0, 1), default=0)
     r.add_argument("--tangent", choices=("exact", "paper"), default="exact")
     r.set_defaults(func=_run)
+    e = sub.add_parser("examples", help="the paper's Mars examples: olympus (Fig. 8) or limb (Fig. 9), on MOLA")
+    e.add_argument("which", choices=("olympus", "limb"))
+    e.add_argument("--dem", help="a Mars DEM NAME.hdr in km (default: the MOLA grid in $PI_SHARED_DATA or ../shared/data)")
+    e.add_argument("--mola", help="a MEGDR radius grid (megr*.img style) to use instead")
+    e.add_argument("--out", default="examples-output", help="results go to a new run-NNN folder here")
+    e.set_defaults(func=_examples)
+    m = sub.add_parser("import-mola", help="convert MOLA MEGDR grids to a .hdr/.dem DEM (km)")
+    m.add_argument("out", help="output NAME (writes NAME.hdr and NAME.dem)")
+    m.add_argument("--radius", help="MEGDR radius grid (value + 3,396,000 m)")
+    m.add_argument("--topography", help="MEGDR topography grid (m above the areoid)")
+    m.add_argument("--areoid", help="areoid grid (value + 3,396,000 m) for --topography")
+    m.add_argument("--overwrite", action="store_true", help="replace existing NAME.hdr/.dem")
+    m.set_defaults(func=_import_mola)
+    f = sub.add_parser("fetch-mola", help="download a MEGDR radius grid from the PDS Geosciences Node and import it")
+    f.add_argument("dest", help="folder for the download and the DEM")
+    f.add_argument("--product", default="megr90n000cb", choices=("megr90n000cb", "megr90n000eb"),
+                   help="megr90n000cb: 4 pixels/degree (2 MB); megr90n000eb: 16 pixels/degree (33 MB)")
+    f.set_defaults(func=_fetch_mola)
     return p
 
 
