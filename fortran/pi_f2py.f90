@@ -9,13 +9,13 @@
 !> Intersect n rays with a DEM held in memory (dem_read_mode 0). See
 !> pi_intersect::intersect_ray for the algorithm and outputs.
 subroutine core_intersect_grid(nlon, nlat, radii, ppd, rmax, f, re, n, s, l, step_mode, &
-                               tangent_mode, p, t, tc, sc, scal, status, nsteps, stat)
+                               tangent_mode, threads, p, t, tc, sc, scal, status, nsteps, stat)
   use pi_kinds, only: dp
   use pi_dem, only: dem_t, dem_attach
   use pi_status, only: stat_ok
   use pi_intersect, only: intersect_packed
   implicit none
-  integer, intent(in) :: nlon, nlat, ppd, n, step_mode, tangent_mode
+  integer, intent(in) :: nlon, nlat, ppd, n, step_mode, tangent_mode, threads
   real(dp), intent(in), target :: radii(nlon, nlat)
   real(dp), intent(in) :: rmax, f, re, s(3, n), l(3, n)
   real(dp), intent(out) :: p(3, n), t(3, n), tc(3, n), sc(3, n), scal(9, n)
@@ -27,12 +27,13 @@ subroutine core_intersect_grid(nlon, nlat, radii, ppd, rmax, f, re, n, s, l, ste
     status = -1; nsteps = 0
     return
   end if
-  call intersect_packed(dem, n, s, l, step_mode, tangent_mode, p, t, tc, sc, scal, status, nsteps, stat)
+  call intersect_packed(dem, n, s, l, step_mode, tangent_mode, p, t, tc, sc, scal, status, nsteps, stat, &
+                        threads)
 end subroutine core_intersect_grid
 
 !> Intersect n rays with the DEM file pair `path` (NAME, NAME.hdr or NAME.dem)
 !> read by Fortran in dem_read_mode 0 (whole grid) or 1 (record by record).
-subroutine core_intersect_file(path, read_mode, n, s, l, step_mode, tangent_mode, &
+subroutine core_intersect_file(path, read_mode, n, s, l, step_mode, tangent_mode, threads, &
                                p, t, tc, sc, scal, status, nsteps, stat)
   use pi_kinds, only: dp
   use pi_dem, only: dem_t, dem_open, dem_close
@@ -40,7 +41,7 @@ subroutine core_intersect_file(path, read_mode, n, s, l, step_mode, tangent_mode
   use pi_intersect, only: intersect_packed
   implicit none
   character(len=*), intent(in) :: path
-  integer, intent(in) :: read_mode, n, step_mode, tangent_mode
+  integer, intent(in) :: read_mode, n, step_mode, tangent_mode, threads
   real(dp), intent(in) :: s(3, n), l(3, n)
   real(dp), intent(out) :: p(3, n), t(3, n), tc(3, n), sc(3, n), scal(9, n)
   integer, intent(out) :: status(n), nsteps(n), stat
@@ -49,7 +50,8 @@ subroutine core_intersect_file(path, read_mode, n, s, l, step_mode, tangent_mode
   status = -1; nsteps = 0
   call dem_open(path, read_mode, dem, stat)
   if (stat /= stat_ok) return
-  call intersect_packed(dem, n, s, l, step_mode, tangent_mode, p, t, tc, sc, scal, status, nsteps, stat)
+  call intersect_packed(dem, n, s, l, step_mode, tangent_mode, p, t, tc, sc, scal, status, nsteps, stat, &
+                        threads)
   call dem_close(dem)
 end subroutine core_intersect_file
 

@@ -20,6 +20,7 @@ module pi_intersect
   use pi_dem, only: dem_t, dem_radius
   use pi_spheroid, only: spheroid_normal, spheroid_radius, tangent_spheroid
   use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan, ieee_is_finite
+  !$ use omp_lib, only: omp_get_max_threads
   implicit none
   private
 
@@ -276,23 +277,37 @@ contains
 
   !> Intersect n rays: res(k) for spacecraft s(:, k) and line of sight l(:, k).
   !>
+  !> threads: OpenMP threads for the ray loop (0 = all available; ignored in a
+  !> build without OpenMP). Rays are independent and each is computed by the
+  !> same code whichever thread runs it, so results are bit-identical for any
+  !> thread count. The count is a num_threads clause: no global state is set.
+  !>
   !> stat: stat_bad_mode when step_mode or tangent_mode is not 0 or 1 (then
   !> nothing is computed); otherwise stat_ok, with per-ray codes in res%status.
-  subroutine intersect_rays(dem, s, l, step_mode, tangent_mode, res, stat)
+  subroutine intersect_rays(dem, s, l, step_mode, tangent_mode, res, stat, threads)
     type(dem_t), intent(in) :: dem
     real(dp), intent(in) :: s(:, :), l(:, :)
     integer, intent(in) :: step_mode, tangent_mode
     type(ray_result_t), intent(out) :: res(:)
     integer, intent(out) :: stat
+    integer, intent(in), optional :: threads
     integer(i8) :: k
+    integer :: nt
     stat = stat_ok
     if ((step_mode /= 0 .and. step_mode /= 1) .or. (tangent_mode /= 0 .and. tangent_mode /= 1)) then
       stat = stat_bad_mode
       return
     end if
+    nt = 1
+    !$ nt = omp_get_max_threads()
+    if (present(threads)) then
+      if (threads > 0) nt = threads
+    end if
+    !$omp parallel do schedule(dynamic, 64) num_threads(nt) default(shared) private(k)
     do k = 1, size(res, kind=i8)
       call intersect_ray(dem, s(:, k), l(:, k), step_mode, tangent_mode, res(k))
     end do
+    !$omp end parallel do
   end subroutine intersect_rays
 
   !> intersect_rays with the results unpacked into plain arrays (the form the
@@ -300,16 +315,18 @@ contains
   !>
   !> scal(:, k) = lat, lon, radius, altitude, emission, tangent_lat,
   !> tangent_lon, tangent_altitude, tangent_height (radians, DEM units).
-  subroutine intersect_packed(dem, n, s, l, step_mode, tangent_mode, p, t, tc, sc, scal, status, nsteps, stat)
+  subroutine intersect_packed(dem, n, s, l, step_mode, tangent_mode, p, t, tc, sc, scal, status, nsteps, stat, &
+                              threads)
     type(dem_t), intent(in) :: dem
     integer, intent(in) :: n, step_mode, tangent_mode
+    integer, intent(in), optional :: threads
     real(dp), intent(in) :: s(3, n), l(3, n)
     real(dp), intent(out) :: p(3, n), t(3, n), tc(3, n), sc(3, n), scal(9, n)
     integer, intent(out) :: status(n), nsteps(n), stat
     type(ray_result_t), allocatable :: res(:)
     integer :: k
     allocate(res(n))
-    call intersect_rays(dem, s, l, step_mode, tangent_mode, res, stat)
+    call intersect_rays(dem, s, l, step_mode, tangent_mode, res, stat, threads)
     if (stat /= stat_ok) then
       p = 0.0_dp; t = 0.0_dp; tc = 0.0_dp; sc = 0.0_dp; scal = 0.0_dp
       status = -1; nsteps = 0

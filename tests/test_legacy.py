@@ -94,7 +94,7 @@ def test_fortran77_style_program_links_and_runs(tmp_path, rough):
         "      END\n")
     exe = tmp_path / "old"
     lib = pi.legacy_paths()["library"]
-    comp = subprocess.run(["gfortran", "-std=legacy", str(src), str(lib), "-o", str(exe)], capture_output=True, text=True)
+    comp = subprocess.run(["gfortran", "-std=legacy", "-fopenmp", str(src), str(lib), "-o", str(exe)], capture_output=True, text=True)
     assert comp.returncode == 0, comp.stderr
     lines = subprocess.run([str(exe)], capture_output=True, text=True, timeout=60, cwd=tmp_path).stdout.splitlines()
     dem = pi.DEM.read(hdr)

@@ -51,3 +51,19 @@ def test_two_threads_give_the_same_results_as_one(rough_file):
         assert np.array_equal(res.p, single[m].p, equal_nan=True)
         assert np.array_equal(res.tc, single[m].tc, equal_nan=True)
         assert np.array_equal(res.status, single[m].status)
+
+
+@pytest.mark.parametrize("dem_read_mode", [0, 1])
+def test_openmp_thread_counts_bit_identical(rough_file, dem_read_mode):
+    s, l, _ = mixed_rays(rough_file, 6000, seed=5)
+    one = pi.intersect(rough_file, s, l, dem_read_mode=dem_read_mode, threads=1)
+    for threads in (2, 3, 0, None):
+        other = pi.intersect(rough_file, s, l, dem_read_mode=dem_read_mode, threads=threads)
+        for name in one.__dataclass_fields__:
+            assert np.array_equal(getattr(one, name), getattr(other, name), equal_nan=True), (threads, name)
+
+
+@pytest.mark.parametrize("bad", [-1, 1.5, "2", True])
+def test_bad_thread_count(rough, bad):
+    with pytest.raises(ValueError, match="threads must be a non-negative integer"):
+        pi.intersect(rough, [5000.0, 0, 0], [-1.0, 0, 0], threads=bad)

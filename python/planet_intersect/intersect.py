@@ -107,7 +107,7 @@ def _check_mode(value, name: str) -> int:
 
 
 def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
-              tangent: str = "exact") -> IntersectResult:
+              tangent: str = "exact", threads: int | None = None) -> IntersectResult:
     """Intersect lines of sight with a DEM (the paper's zcalc_planet_intersect).
 
     Parameters
@@ -128,6 +128,9 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
         Spheroid tangent point of limb rays: "exact" is the nearest point between
         line and spheroid; "paper" the construction of eqs. 55-58, which agrees
         when the line touches the spheroid (docs/paper-notes.md gives the difference).
+    threads : int, optional
+        OpenMP threads for the ray loop; None or 0: all cores. Results are
+        bit-identical for any count.
 
     Returns
     -------
@@ -149,6 +152,10 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
     dem_read_mode = _check_mode(dem_read_mode, "dem_read_mode")
     if tangent not in _TANGENT:
         raise ValueError(f"tangent must be 'exact' or 'paper', got {tangent!r}")
+    if threads is None:
+        threads = 0
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 0:
+        raise ValueError(f"threads must be a non-negative integer (0 or None: all cores), got {threads!r}")
     s = _as_vectors(s, "s")
     l = _as_vectors(l, "l")
     if len(s) != len(l) and len(s) != 1 and len(l) != 1:
@@ -159,13 +166,13 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
 
     if dem_read_mode == 0:
         out = _core.core_intersect_grid(dem.radii64().T, dem.ppd, dem.rmax, dem.f, dem.re,
-                                        s.T, l.T, step_mode, _TANGENT[tangent])
+                                        s.T, l.T, step_mode, _TANGENT[tangent], int(threads))
         where = "intersect"
     else:
         if dem.path is None:
             raise ValueError("dem_read_mode=1 reads records from the DEM's file: "
                              "this DEM is in memory (write it with dem.write() and DEM.read() it)")
-        out = _core.core_intersect_file(str(dem.path), 1, s.T, l.T, step_mode, _TANGENT[tangent])
+        out = _core.core_intersect_file(str(dem.path), 1, s.T, l.T, step_mode, _TANGENT[tangent], int(threads))
         where = f"intersect (dem_read_mode=1, {dem.path})"
     p, t, tc, sc, scal, status, nsteps, stat = out
     raise_for_stat(stat, where)
