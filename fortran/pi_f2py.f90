@@ -9,18 +9,24 @@
 !> Intersect n rays with a DEM held in memory (dem_read_mode 0). See
 !> pi_intersect::intersect_ray for the algorithm and outputs.
 subroutine core_intersect_grid(nlon, nlat, radii, ppd, rmax, f, re, n, s, l, step_mode, &
-                               tangent_mode, threads, p, t, tc, sc, scal, status, nsteps, stat)
+                               tangent_mode, threads, method, npyr, pyr_data, nlev, pyr_meta, &
+                               p, t, tc, sc, scal, status, nsteps, stat)
   use pi_kinds, only: dp
   use pi_dem, only: dem_t, dem_attach
   use pi_status, only: stat_ok
   use pi_intersect, only: intersect_packed
+  use pi_exact, only: pyramid_t, pyramid_attach
   implicit none
-  integer, intent(in) :: nlon, nlat, ppd, n, step_mode, tangent_mode, threads
+  integer, intent(in) :: nlon, nlat, ppd, n, step_mode, tangent_mode, threads, method, npyr, nlev
+  real(dp), intent(in), target :: pyr_data(npyr)
+  integer, intent(in) :: pyr_meta(3, nlev)
   real(dp), intent(in), target :: radii(nlon, nlat)
   real(dp), intent(in) :: rmax, f, re, s(3, n), l(3, n)
   real(dp), intent(out) :: p(3, n), t(3, n), tc(3, n), sc(3, n), scal(9, n)
   integer, intent(out) :: status(n), nsteps(n), stat
   type(dem_t) :: dem
+  type(pyramid_t) :: pyr
+  call pyramid_attach(pyr_data, pyr_meta, pyr)
   call dem_attach(radii, ppd, rmax, f, re, dem, stat)
   if (stat /= stat_ok) then
     p = 0.0_dp; t = 0.0_dp; tc = 0.0_dp; sc = 0.0_dp; scal = 0.0_dp
@@ -28,30 +34,36 @@ subroutine core_intersect_grid(nlon, nlat, radii, ppd, rmax, f, re, n, s, l, ste
     return
   end if
   call intersect_packed(dem, n, s, l, step_mode, tangent_mode, p, t, tc, sc, scal, status, nsteps, stat, &
-                        threads)
+                        threads, method, pyr)
 end subroutine core_intersect_grid
 
 !> Intersect n rays with the DEM file pair `path` (NAME, NAME.hdr or NAME.dem)
 !> read by Fortran in dem_read_mode 0 (whole grid) or 1 (record by record).
 subroutine core_intersect_file(path, read_mode, n, s, l, step_mode, tangent_mode, threads, &
+                               method, npyr, pyr_data, nlev, pyr_meta, &
                                p, t, tc, sc, scal, status, nsteps, stat)
   use pi_kinds, only: dp
   use pi_dem, only: dem_t, dem_open, dem_close
   use pi_status, only: stat_ok
   use pi_intersect, only: intersect_packed
+  use pi_exact, only: pyramid_t, pyramid_attach
   implicit none
   character(len=*), intent(in) :: path
-  integer, intent(in) :: read_mode, n, step_mode, tangent_mode, threads
+  integer, intent(in) :: read_mode, n, step_mode, tangent_mode, threads, method, npyr, nlev
+  real(dp), intent(in), target :: pyr_data(npyr)
+  integer, intent(in) :: pyr_meta(3, nlev)
   real(dp), intent(in) :: s(3, n), l(3, n)
   real(dp), intent(out) :: p(3, n), t(3, n), tc(3, n), sc(3, n), scal(9, n)
   integer, intent(out) :: status(n), nsteps(n), stat
   type(dem_t) :: dem
+  type(pyramid_t) :: pyr
   p = 0.0_dp; t = 0.0_dp; tc = 0.0_dp; sc = 0.0_dp; scal = 0.0_dp
   status = -1; nsteps = 0
+  call pyramid_attach(pyr_data, pyr_meta, pyr)
   call dem_open(path, read_mode, dem, stat)
   if (stat /= stat_ok) return
   call intersect_packed(dem, n, s, l, step_mode, tangent_mode, p, t, tc, sc, scal, status, nsteps, stat, &
-                        threads)
+                        threads, method, pyr)
   call dem_close(dem)
 end subroutine core_intersect_file
 

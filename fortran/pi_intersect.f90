@@ -19,12 +19,19 @@ module pi_intersect
   use pi_vector, only: pi, rad, deg, vsep, latlon_of, unit_vector
   use pi_dem, only: dem_t, dem_radius
   use pi_spheroid, only: spheroid_normal, spheroid_radius, tangent_spheroid
+  use pi_exact, only: pyramid_t, exact_search
   use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan, ieee_is_finite
   !$ use omp_lib, only: omp_get_max_threads
   implicit none
   private
 
   public :: ray_result_t, intersect_ray, intersect_rays, intersect_packed, step_angle, refine_tol_rel, refine_maxit
+  public :: pyramid_t, method_stepping, method_exact, exact_tol_rel
+
+  !> method values: the paper's ray stepping, or the exact first hit (pi_exact).
+  integer, parameter :: method_stepping = 0, method_exact = 1
+  !> Exact mode: leaves of the subdivision are shorter than exact_tol_rel * rmax.
+  real(dp), parameter :: exact_tol_rel = 1.0e-9_dp
 
   !> Refinement stops when |r(p') - p'| <= refine_tol_rel * rmax [note 5].
   real(dp), parameter :: refine_tol_rel = 1.0e-12_dp
@@ -82,16 +89,20 @@ contains
   !> (eqs. 25-28) with psi_i the angle at the current test point between l and
   !> the direction to the centre [note 1]. The first g_{i+1} with |g_{i+1}| < r_{i+1}
   !> brackets the hit, which is refined with eqs. 34-41. No test point beyond dm.
-  subroutine intersect_ray(dem, s, l_in, step_mode, tangent_mode, res)
+  subroutine intersect_ray(dem, s, l_in, step_mode, tangent_mode, res, method, pyr)
     type(dem_t), intent(in) :: dem
     real(dp), intent(in) :: s(3), l_in(3)
     integer, intent(in) :: step_mode, tangent_mode
     type(ray_result_t), intent(out) :: res
+    !> method_stepping (default) or method_exact, which needs pyr.
+    integer, intent(in), optional :: method
+    type(pyramid_t), intent(in), optional :: pyr
     real(dp) :: l(3), sn, cos_psi0, tn, half, d0, dm, nan, lat, lon, r_s
     real(dp) :: g(3), gn, rg, psi, dalpha, psi_next, denom, dg, d, d_next
     real(dp) :: g_next(3), gn_next, r_next, lat_next, lon_next, n(3), r_tc
-    integer :: st
-    logical :: hit
+    integer :: st, nodes
+    logical :: hit, exact
+    real(dp) :: d_hit
 
     nan = ieee_value(0.0_dp, ieee_quiet_nan)
     res%p = nan; res%lat = nan; res%lon = nan; res%radius = nan
@@ -136,7 +147,20 @@ contains
       half = sqrt(dem%rmax**2 - tn**2)
       d0 = sn*cos_psi0 - half                     ! eq. 21
       dm = sn*cos_psi0 + half                     ! eq. 22
-      if (dm > 0.0_dp) then
+      exact = .false.
+      if (present(method) .and. present(pyr)) exact = method == method_exact
+      if (dm > 0.0_dp .and. exact) then
+        call exact_search(dem, pyr, s, l, max(d0, 0.0_dp), dm, exact_tol_rel*dem%rmax, hit, d_hit, nodes, st)
+        res%nsteps = nodes
+        if (st /= stat_ok) then
+          res%status = ray_read_error
+          return
+        end if
+        if (hit) then
+          res%p = s + d_hit*l
+          res%status = ray_hit
+        end if
+      else if (dm > 0.0_dp) then
         d = max(d0, 0.0_dp)                       ! [note 3]
         g = s + d*l                               ! eq. 24
         gn = norm2(g)
@@ -284,17 +308,29 @@ contains
   !>
   !> stat: stat_bad_mode when step_mode or tangent_mode is not 0 or 1 (then
   !> nothing is computed); otherwise stat_ok, with per-ray codes in res%status.
-  subroutine intersect_rays(dem, s, l, step_mode, tangent_mode, res, stat, threads)
+  subroutine intersect_rays(dem, s, l, step_mode, tangent_mode, res, stat, threads, method, pyr)
     type(dem_t), intent(in) :: dem
     real(dp), intent(in) :: s(:, :), l(:, :)
     integer, intent(in) :: step_mode, tangent_mode
     type(ray_result_t), intent(out) :: res(:)
     integer, intent(out) :: stat
-    integer, intent(in), optional :: threads
+    integer, intent(in), optional :: threads, method
+    type(pyramid_t), intent(in), optional :: pyr
+    integer :: meth
     integer(i8) :: k
     integer :: nt
     stat = stat_ok
     if ((step_mode /= 0 .and. step_mode /= 1) .or. (tangent_mode /= 0 .and. tangent_mode /= 1)) then
+      stat = stat_bad_mode
+      return
+    end if
+    meth = method_stepping
+    if (present(method)) meth = method
+    if (meth /= method_stepping .and. meth /= method_exact) then
+      stat = stat_bad_mode
+      return
+    end if
+    if (meth == method_exact .and. .not. present(pyr)) then
       stat = stat_bad_mode
       return
     end if
@@ -303,11 +339,19 @@ contains
     if (present(threads)) then
       if (threads > 0) nt = threads
     end if
-    !$omp parallel do schedule(dynamic, 64) num_threads(nt) default(shared) private(k)
-    do k = 1, size(res, kind=i8)
-      call intersect_ray(dem, s(:, k), l(:, k), step_mode, tangent_mode, res(k))
-    end do
-    !$omp end parallel do
+    if (meth == method_exact) then
+      !$omp parallel do schedule(dynamic, 64) num_threads(nt) default(shared) private(k)
+      do k = 1, size(res, kind=i8)
+        call intersect_ray(dem, s(:, k), l(:, k), step_mode, tangent_mode, res(k), meth, pyr)
+      end do
+      !$omp end parallel do
+    else
+      !$omp parallel do schedule(dynamic, 64) num_threads(nt) default(shared) private(k)
+      do k = 1, size(res, kind=i8)
+        call intersect_ray(dem, s(:, k), l(:, k), step_mode, tangent_mode, res(k))
+      end do
+      !$omp end parallel do
+    end if
   end subroutine intersect_rays
 
   !> intersect_rays with the results unpacked into plain arrays (the form the
@@ -316,17 +360,18 @@ contains
   !> scal(:, k) = lat, lon, radius, altitude, emission, tangent_lat,
   !> tangent_lon, tangent_altitude, tangent_height (radians, DEM units).
   subroutine intersect_packed(dem, n, s, l, step_mode, tangent_mode, p, t, tc, sc, scal, status, nsteps, stat, &
-                              threads)
+                              threads, method, pyr)
     type(dem_t), intent(in) :: dem
     integer, intent(in) :: n, step_mode, tangent_mode
-    integer, intent(in), optional :: threads
+    integer, intent(in), optional :: threads, method
+    type(pyramid_t), intent(in), optional :: pyr
     real(dp), intent(in) :: s(3, n), l(3, n)
     real(dp), intent(out) :: p(3, n), t(3, n), tc(3, n), sc(3, n), scal(9, n)
     integer, intent(out) :: status(n), nsteps(n), stat
     type(ray_result_t), allocatable :: res(:)
     integer :: k
     allocate(res(n))
-    call intersect_rays(dem, s, l, step_mode, tangent_mode, res, stat, threads)
+    call intersect_rays(dem, s, l, step_mode, tangent_mode, res, stat, threads, method, pyr)
     if (stat /= stat_ok) then
       p = 0.0_dp; t = 0.0_dp; tc = 0.0_dp; sc = 0.0_dp; scal = 0.0_dp
       status = -1; nsteps = 0

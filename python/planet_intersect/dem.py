@@ -128,6 +128,7 @@ class DEM:
         self.re = float(re)
         self.path = path
         self._radii64 = None
+        self._pyramid = None
 
     # construction -----------------------------------------------------------------
     @classmethod
@@ -203,6 +204,55 @@ class DEM:
         if self._radii64 is None:
             self._radii64 = np.ascontiguousarray(self.radii, dtype=np.float64)
         return self._radii64
+
+    def pyramid(self) -> tuple[np.ndarray, np.ndarray]:
+        """The max-pyramid of the exact first-hit mode, built once and kept.
+
+        Cells: row 0 is the south polar cap (pole to the first row), rows 1..nlat-1
+        lie between DEM rows, row nlat is the north cap; column i spans DEM columns
+        i and i+1 (wrapping). A bilinear cell never exceeds its four corner radii.
+        Level k >= 1 holds, for each block of 2^k x 2^k cells, the largest node
+        radius bordering the block, nudged up by two ulps so that rounding can
+        never make it a hair low. Returns ``(data, meta)``: all levels in one
+        float64 array, and ``meta[k-1] = (rows, cols, offset)``.
+        """
+        if self._pyramid is not None:
+            return self._pyramid
+        nlat, nlon = self.nlat, self.nlon
+        south = np.sum(np.asarray(self.radii[0], dtype=np.float64)) / nlon
+        north = np.sum(np.asarray(self.radii[-1], dtype=np.float64)) / nlon
+        rows1 = (nlat + 2) // 2                       # ceil((nlat + 1) / 2) cell rows in pairs
+        level = np.empty((rows1, nlon))
+        for bc in range(0, rows1, _BLOCK_ROWS):       # extended node rows 2bc..2bc+2 (0 = south pole)
+            top = min(bc + _BLOCK_ROWS, rows1)
+            ext = np.empty((2 * (top - bc) + 1, nlon))
+            for k, e in enumerate(range(2 * bc, 2 * top + 1)):
+                if e == 0:
+                    ext[k] = south
+                elif e <= nlat:
+                    ext[k] = self.radii[e - 1]
+                elif e == nlat + 1:
+                    ext[k] = north
+                else:
+                    ext[k] = -np.inf
+            level[bc:top] = np.maximum(np.maximum(ext[0:-1:2], ext[1::2]), ext[2::2])
+        level = np.maximum(np.maximum(level[:, 0::2], level[:, 1::2]), np.roll(level, -1, axis=1)[:, 1::2])
+        levels = [level]
+        while level.shape[0] > 1 or level.shape[1] > 1:
+            r, c = level.shape
+            pad = np.full((r + r % 2, c + c % 2), -np.inf)
+            pad[:r, :c] = level
+            level = np.maximum(np.maximum(pad[0::2, 0::2], pad[1::2, 0::2]), np.maximum(pad[0::2, 1::2], pad[1::2, 1::2]))
+            levels.append(level)
+        meta = np.zeros((len(levels), 3), dtype=np.int32)
+        offset = 0
+        for k, lv in enumerate(levels):
+            meta[k] = (lv.shape[0], lv.shape[1], offset)
+            offset += lv.size
+        data = np.concatenate([lv.ravel() for lv in levels])
+        data = np.nextafter(np.nextafter(data, np.inf), np.inf)
+        self._pyramid = (data, meta)
+        return self._pyramid
 
     # output -------------------------------------------------------------------------
     def write(self, path: str | os.PathLike, dtype: str | None = None, byteorder: str = "little",

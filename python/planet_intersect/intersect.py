@@ -17,6 +17,8 @@ from .dem import DEM
 __all__ = ["intersect", "IntersectResult"]
 
 _TANGENT = {"paper": 0, "exact": 1}
+_METHOD = {"stepping": 0, "exact": 1}
+_NO_PYRAMID = (np.zeros(1), np.zeros((1, 3), dtype=np.int32))
 
 
 @dataclass
@@ -107,7 +109,7 @@ def _check_mode(value, name: str) -> int:
 
 
 def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
-              tangent: str = "exact", threads: int | None = None) -> IntersectResult:
+              tangent: str = "exact", threads: int | None = None, method: str = "stepping") -> IntersectResult:
     """Intersect lines of sight with a DEM (the paper's zcalc_planet_intersect).
 
     Parameters
@@ -131,6 +133,13 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
     threads : int, optional
         OpenMP threads for the ray loop; None or 0: all cores. Results are
         bit-identical for any count.
+    method : "stepping" or "exact"
+        "stepping": the paper's algorithm (eqs. 23-41). "exact": the first entry
+        of the ray into the same bilinear surface, found by subdividing the ray
+        against a max-pyramid of the DEM (built on first use and kept with the
+        DEM); exact to 1e-9 rmax along the ray, never a later entry, never a
+        miss of a chord longer than that. ``nsteps`` then counts the segments
+        examined. Limb outputs are identical for both.
 
     Returns
     -------
@@ -150,6 +159,8 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
         raise TypeError(f"dem must be a planet_intersect.DEM, got {type(dem).__name__}")
     step_mode = _check_mode(step_mode, "step_mode")
     dem_read_mode = _check_mode(dem_read_mode, "dem_read_mode")
+    if method not in _METHOD:
+        raise ValueError(f"method must be 'stepping' or 'exact', got {method!r}")
     if tangent not in _TANGENT:
         raise ValueError(f"tangent must be 'exact' or 'paper', got {tangent!r}")
     if threads is None:
@@ -164,15 +175,18 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
     s = np.ascontiguousarray(np.broadcast_to(s, (n, 3)))
     l = np.ascontiguousarray(np.broadcast_to(l, (n, 3)))
 
+    pyr_data, pyr_meta = dem.pyramid() if method == "exact" else _NO_PYRAMID
+    extra = dict(threads=int(threads), method=_METHOD[method])
     if dem_read_mode == 0:
         out = _core.core_intersect_grid(dem.radii64().T, dem.ppd, dem.rmax, dem.f, dem.re,
-                                        s.T, l.T, step_mode, _TANGENT[tangent], int(threads))
+                                        s.T, l.T, step_mode, _TANGENT[tangent], pyr_data, pyr_meta.T, **extra)
         where = "intersect"
     else:
         if dem.path is None:
             raise ValueError("dem_read_mode=1 reads records from the DEM's file: "
                              "this DEM is in memory (write it with dem.write() and DEM.read() it)")
-        out = _core.core_intersect_file(str(dem.path), 1, s.T, l.T, step_mode, _TANGENT[tangent], int(threads))
+        out = _core.core_intersect_file(str(dem.path), 1, s.T, l.T, step_mode, _TANGENT[tangent], pyr_data,
+                                        pyr_meta.T, **extra)
         where = f"intersect (dem_read_mode=1, {dem.path})"
     p, t, tc, sc, scal, status, nsteps, stat = out
     raise_for_stat(stat, where)

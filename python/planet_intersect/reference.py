@@ -259,3 +259,83 @@ def intersect(radii, ppd, rmax, f, re, s, l, step_mode=1):
         out["tangent_altitude"][limb] = (r_c - r_dem) * cos_gamma + dd      # eq. 63
     out["status"] = status
     return out
+
+
+def exhaustive_first_hit(radii, ppd, rmax, s, l, substeps=64):
+    """Brute-force first entry into the bilinear surface: steps no longer than
+    1/``substeps`` of a cell along the ray, then bisection of the first bracket.
+
+    Each step is ``min(radii) * (1/ppd deg) / substeps * cos(lat)`` long, lat the
+    current latitude clamped to the first/last row centre: until the ray is below
+    the surface |g| >= min(radii), so a step moves it at most 1/substeps of a
+    cell in latitude and in longitude. Where the sampled height |g| - r has a
+    local minimum, the minimum is searched (ternary search) before moving on:
+    the surface's creases at cell edges make V-shaped dips whose chord below the
+    surface can be far shorter than a step. Returns ``(hit, d)``; d NaN where none.
+    Independent of the Fortran exact mode (no pyramid, no bounds).
+    """
+    grid = _Grid(radii, ppd)
+    s = np.array(s, dtype=np.float64, ndmin=2)
+    l = np.array(l, dtype=np.float64, ndmin=2)
+    l = l / np.linalg.norm(l, axis=1, keepdims=True)
+    n = len(s)
+    hit = np.zeros(n, bool)
+    d_hit = np.full(n, np.nan)
+    b = np.sum(s * l, axis=1)
+    t_len = np.linalg.norm(s - b[:, None] * l, axis=1)
+    half = np.sqrt(np.maximum(rmax ** 2 - t_len ** 2, 0.0))
+    d = np.maximum(-b - half, 0.0)
+    d1 = -b + half
+    base = float(grid.r.min()) * np.radians(1.0 / ppd) / substeps
+    lim = np.radians(90.0 - 0.5 / ppd)
+
+    def height(k, dd):
+        g = s[k] + dd[:, None] * l[k]
+        th, ph = _latlon(g)
+        return np.linalg.norm(g, axis=1) - dem_radius(grid, th, ph), th
+
+    active = np.flatnonzero((t_len < rmax) & (d1 > 0))
+    f, th = height(active, d[active])
+    d_prev = d[active].copy()            # the sample before d, and its height
+    f_prev = np.full(active.size, np.inf)
+    while active.size:
+        step = base * np.cos(np.minimum(np.abs(np.radians(th)), lim))
+        d_new = d[active] + step
+        end = d_new > d1[active]
+        d_new = np.minimum(d_new, d1[active])
+        f_new, th_new = height(active, d_new)
+        below = f_new < 0
+        lo_b = d[active].copy()              # bracket start for a hit (height > 0 there)
+        hi_b = d_new.copy()
+        # a sampled local minimum (f_prev > f <= f_new): search it for a dip below the surface
+        dip = ~below & (f_prev > f) & (f <= f_new)
+        if dip.any():
+            j = np.flatnonzero(dip)
+            k = active[j]
+            a, c = d_prev[j], d_new[j]
+            for _ in range(56):
+                m1, m2 = a + (c - a) / 3, c - (c - a) / 3
+                f1, f2 = height(k, m1)[0], height(k, m2)[0]
+                c = np.where(f1 < f2, m2, c)
+                a = np.where(f1 < f2, a, m1)
+            dm = 0.5 * (a + c)
+            fm = height(k, dm)[0]
+            neg = fm < 0
+            below[j[neg]] = True
+            lo_b[j[neg]] = d_prev[j[neg]]
+            hi_b[j[neg]] = dm[neg]
+        k = active[below]
+        if k.size:
+            lo, hi = lo_b[below], hi_b[below]
+            for _ in range(60):
+                mid = 0.5 * (lo + hi)
+                fm = height(k, mid)[0]
+                hi = np.where(fm < 0, mid, hi)
+                lo = np.where(fm < 0, lo, mid)
+            hit[k] = True
+            d_hit[k] = hi
+        keep = ~below & ~end
+        d_prev, f_prev = d[active[keep]].copy(), f[keep]
+        d[active[keep]] = d_new[keep]
+        active, f, th = active[keep], f_new[keep], th_new[keep]
+    return hit, d_hit

@@ -13,7 +13,8 @@ import numpy as np
 from .dem import DEM
 from .geometry import detector_los, spheroid_radius
 
-__all__ = ["MARS_RE", "MARS_F", "MARS_MEAN_RADIUS", "OLYMPUS", "mars_like_dem", "rough_dem", "oblique_scene"]
+__all__ = ["MARS_RE", "MARS_F", "MARS_MEAN_RADIUS", "OLYMPUS", "mars_like_dem", "rough_dem", "oblique_scene",
+           "adversarial_dem"]
 
 #: Mars equatorial radius (km) and flattening used throughout (IAU-style values;
 #: re = 3396.19 km, polar 3376.2 km gives f = 1/169.9; DESIGN uses 1/169.8)
@@ -98,3 +99,36 @@ def oblique_scene(nh: int = 101, nv: int = 101, pixel: float = 0.015, altitude: 
     q = up - np.dot(up, l0) * l0
     q /= np.linalg.norm(q)
     return s, detector_los(l0, q, nh, nv, pixel, pixel)
+
+
+def adversarial_dem(kind: str, ppd: int = 1, base: float = 3390.0, seed: int = 0) -> DEM:
+    """DEMs built to break ray stepping: ``needles`` (isolated one-node spikes
+    3-15 km high, some within a pixel of the poles and at 0/360 E), ``blocks``
+    (building-like rectangles of nodes raised 2-8 km with vertical-as-possible
+    walls), ``ridges`` (one-node-wide walls along meridians and parallels)."""
+    rng = np.random.default_rng(seed)
+    nlat, nlon = 180 * ppd, 360 * ppd
+    radii = np.full((nlat, nlon), base) + 0.05 * rng.standard_normal((nlat, nlon))
+    if kind == "needles":
+        n = nlat * nlon // 40
+        radii[rng.integers(0, nlat, n), rng.integers(0, nlon, n)] += rng.uniform(3, 15, n)
+        radii[[0, 0, -1, -1, 1, -2], [0, nlon // 2, 3, nlon - 1, 7, 11]] += 12.0      # at the poles
+        radii[rng.integers(0, nlat, 20), 0] += 9.0                                      # at 0/360 E
+        radii[rng.integers(0, nlat, 20), -1] += 9.0
+    elif kind == "blocks":
+        for _ in range(nlat * nlon // 300):
+            j, i = rng.integers(0, nlat - 4), rng.integers(0, nlon)
+            h, w = rng.integers(1, 4), rng.integers(1, 4)
+            cols = np.arange(i, i + w) % nlon
+            radii[j:j + h, cols] += rng.uniform(2, 8)
+    elif kind == "ridges":
+        for _ in range(ppd * 12):
+            i = rng.integers(0, nlon)
+            j0, j1 = sorted(rng.integers(0, nlat, 2))
+            radii[j0:j1, i] += rng.uniform(2, 6)
+            j = rng.integers(0, nlat)
+            i0 = rng.integers(0, nlon)
+            radii[j, np.arange(i0, i0 + nlon // 6) % nlon] += rng.uniform(2, 6)
+    else:
+        raise ValueError(f"kind must be needles, blocks or ridges, got {kind!r}")
+    return DEM.from_array(radii)
