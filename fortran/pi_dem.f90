@@ -20,7 +20,8 @@ module pi_dem
   use pi_kinds, only: dp, sp, i1, i4, i8
   use pi_status
   use pi_vector, only: pi, rad, deg, lon_diff
-  use pi_io, only: io_open, io_close, io_size, io_read
+  use pi_io, only: io_open, io_close, io_size, io_read, io_map, io_unmap
+  use, intrinsic :: iso_c_binding, only: c_ptr, c_null_ptr, c_associated, c_f_pointer
   use, intrinsic :: ieee_arithmetic, only: ieee_is_finite
   implicit none
   private
@@ -49,6 +50,11 @@ module pi_dem
     !> Mean radius of the southernmost and northernmost rows (section 2.2,
     !> the radius assigned to the poles).
     real(dp) :: pole_south = 0.0_dp, pole_north = 0.0_dp
+    !> Mode 1 with a memory map: the mapping and its float32 or float64 view.
+    type(c_ptr) :: map = c_null_ptr
+    integer(i8) :: map_bytes = 0
+    real(sp), pointer, contiguous :: map_sp(:, :) => null()
+    real(dp), pointer, contiguous :: map_dp(:, :) => null()
   end type dem_t
 
 contains
@@ -197,11 +203,14 @@ contains
   !>
   !> stat: any code of dem_read_header, stat_dem_open, stat_dem_size,
   !> stat_dem_read, stat_bad_radii, stat_bad_rmax, stat_bad_mode.
-  subroutine dem_open(name, read_mode, dem, stat)
+  subroutine dem_open(name, read_mode, dem, stat, use_map)
     character(len=*), intent(in) :: name
     integer, intent(in) :: read_mode
     type(dem_t), intent(out) :: dem
     integer, intent(out) :: stat
+    !> read_mode 1 only: read records from a memory map instead of pread
+    !> (ignored when the file's byte order is not the machine's).
+    logical, intent(in), optional :: use_map
     character(len=:), allocatable :: hdr, demfile
     integer(i8) :: fsize
     integer :: j
@@ -247,6 +256,19 @@ contains
       dem%pole_south = dem_polar_mean(dem%radii(:, 1))
       dem%pole_north = dem_polar_mean(dem%radii(:, dem%nlat))
     else
+      if (present(use_map)) then
+        if (use_map .and. .not. dem%swap) then
+          dem%map = io_map(dem%fd, fsize)
+          if (c_associated(dem%map)) then
+            dem%map_bytes = fsize
+            if (dem%itemsize == 4) then
+              call c_f_pointer(dem%map, dem%map_sp, [dem%nlon, dem%nlat])
+            else
+              call c_f_pointer(dem%map, dem%map_dp, [dem%nlon, dem%nlat])
+            end if
+          end if
+        end if
+      end if
       allocate(row(dem%nlon))
       call read_records(dem, 1_i8, dem%nlon, row, stat)
       if (stat == stat_ok) dem%pole_south = dem_polar_mean(row)
@@ -299,6 +321,10 @@ contains
   !> Release a DEM: close its file, free a grid it owns.
   subroutine dem_close(dem)
     type(dem_t), intent(inout) :: dem
+    if (c_associated(dem%map)) call io_unmap(dem%map, dem%map_bytes)
+    dem%map = c_null_ptr
+    dem%map_sp => null()
+    dem%map_dp => null()
     if (dem%fd /= -1) call io_close(dem%fd)
     dem%fd = -1
     if (dem%owns_radii .and. associated(dem%radii)) deallocate(dem%radii)
@@ -385,6 +411,12 @@ contains
       integer :: st
       if (dem%read_mode == 0) then
         value = dem%radii(i, j)
+      else if (associated(dem%map_sp)) then
+        value = real(dem%map_sp(i, j), dp)
+        if (.not. (value > 0.0_dp .and. value <= dem%rmax)) stat = stat_bad_radii
+      else if (associated(dem%map_dp)) then
+        value = dem%map_dp(i, j)
+        if (.not. (value > 0.0_dp .and. value <= dem%rmax)) stat = stat_bad_radii
       else
         call read_records(dem, int(j - 1, i8)*dem%nlon + i, 1, buf, st)   ! eq. 1
         value = buf(1)

@@ -40,7 +40,7 @@ end subroutine core_intersect_grid
 !> Intersect n rays with the DEM file pair `path` (NAME, NAME.hdr or NAME.dem)
 !> read by Fortran in dem_read_mode 0 (whole grid) or 1 (record by record).
 subroutine core_intersect_file(path, read_mode, n, s, l, step_mode, tangent_mode, threads, &
-                               method, npyr, pyr_data, nlev, pyr_meta, &
+                               method, use_map, npyr, pyr_data, nlev, pyr_meta, &
                                p, t, tc, sc, scal, status, nsteps, stat)
   use pi_kinds, only: dp
   use pi_dem, only: dem_t, dem_open, dem_close
@@ -49,7 +49,7 @@ subroutine core_intersect_file(path, read_mode, n, s, l, step_mode, tangent_mode
   use pi_exact, only: pyramid_t, pyramid_attach
   implicit none
   character(len=*), intent(in) :: path
-  integer, intent(in) :: read_mode, n, step_mode, tangent_mode, threads, method, npyr, nlev
+  integer, intent(in) :: read_mode, n, step_mode, tangent_mode, threads, method, use_map, npyr, nlev
   real(dp), intent(in), target :: pyr_data(npyr)
   integer, intent(in) :: pyr_meta(3, nlev)
   real(dp), intent(in) :: s(3, n), l(3, n)
@@ -60,7 +60,7 @@ subroutine core_intersect_file(path, read_mode, n, s, l, step_mode, tangent_mode
   p = 0.0_dp; t = 0.0_dp; tc = 0.0_dp; sc = 0.0_dp; scal = 0.0_dp
   status = -1; nsteps = 0
   call pyramid_attach(pyr_data, pyr_meta, pyr)
-  call dem_open(path, read_mode, dem, stat)
+  call dem_open(path, read_mode, dem, stat, use_map=use_map /= 0)
   if (stat /= stat_ok) return
   call intersect_packed(dem, n, s, l, step_mode, tangent_mode, p, t, tc, sc, scal, status, nsteps, stat, &
                         threads, method, pyr)

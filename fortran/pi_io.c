@@ -34,3 +34,13 @@ int pi_io_pread(int fd, void *buf, int64_t n, int64_t offset) {
   }
   return 0;
 }
+
+#include <sys/mman.h>
+
+/* Map `size` bytes of the open file read-only; NULL on failure. */
+void *pi_io_map(int fd, int64_t size) {
+  void *p = mmap(NULL, (size_t)size, PROT_READ, MAP_SHARED, fd, 0);
+  return p == MAP_FAILED ? NULL : p;
+}
+
+int pi_io_unmap(void *p, int64_t size) { return munmap(p, (size_t)size); }

@@ -5,12 +5,13 @@
 !> shared by every thread using it; pread has neither limit, so a DEM opened
 !> in dem_read_mode 1 can be read by many threads and opened by many callers.
 module pi_io
-  use, intrinsic :: iso_c_binding, only: c_int, c_int64_t, c_char, c_null_char, c_ptr, c_loc
+  use, intrinsic :: iso_c_binding, only: c_int, c_int64_t, c_char, c_null_char, c_ptr, c_loc, c_null_ptr, &
+                                         c_associated
   use pi_kinds, only: i1, i8
   implicit none
   private
 
-  public :: io_open, io_close, io_size, io_read
+  public :: io_open, io_close, io_size, io_read, io_map, io_unmap
 
   interface
     function c_open(path) bind(c, name='pi_io_open') result(fd)
@@ -35,9 +36,37 @@ module pi_io
       integer(c_int64_t), value :: n, offset
       integer(c_int) :: rc
     end function c_pread
+    function c_map(fd, n) bind(c, name='pi_io_map') result(p)
+      import :: c_int, c_int64_t, c_ptr
+      integer(c_int), value :: fd
+      integer(c_int64_t), value :: n
+      type(c_ptr) :: p
+    end function c_map
+    function c_unmap(p, n) bind(c, name='pi_io_unmap') result(rc)
+      import :: c_int, c_int64_t, c_ptr
+      type(c_ptr), value :: p
+      integer(c_int64_t), value :: n
+      integer(c_int) :: rc
+    end function c_unmap
   end interface
 
 contains
+
+  !> Map the first n bytes of the open file read-only (c_null_ptr on failure).
+  function io_map(fd, n) result(p)
+    integer, intent(in) :: fd
+    integer(i8), intent(in) :: n
+    type(c_ptr) :: p
+    p = c_map(int(fd, c_int), int(n, c_int64_t))
+  end function io_map
+
+  !> Unmap a mapping from io_map.
+  subroutine io_unmap(p, n)
+    type(c_ptr), intent(in) :: p
+    integer(i8), intent(in) :: n
+    integer(c_int) :: rc
+    if (c_associated(p)) rc = c_unmap(p, int(n, c_int64_t))
+  end subroutine io_unmap
 
   !> Open `path` for reading; fd >= 0 on success, negative otherwise.
   function io_open(path) result(fd)

@@ -67,3 +67,56 @@ def test_openmp_thread_counts_bit_identical(rough_file, dem_read_mode):
 def test_bad_thread_count(rough, bad):
     with pytest.raises(ValueError, match="threads must be a non-negative integer"):
         pi.intersect(rough, [5000.0, 0, 0], [-1.0, 0, 0], threads=bad)
+
+
+@pytest.mark.parametrize("dtype, byteorder", [("float32", "little"), ("float64", "little"), ("float32", "big")])
+@pytest.mark.parametrize("method", ["stepping", "exact"])
+def test_mmap_path_bit_identical(tmp_path, rough, dtype, byteorder, method):
+    hdr = rough.write(tmp_path / "m", dtype=dtype, byteorder=byteorder)
+    dem = pi.DEM.read(hdr)
+    s, l, _ = mixed_rays(dem, 3000, seed=14)
+    a = pi.intersect(dem, s, l, dem_read_mode=1, io="records", method=method)
+    b = pi.intersect(dem, s, l, dem_read_mode=1, io="mmap", method=method)
+    c = pi.intersect(dem, s, l, dem_read_mode=0, method=method)
+    for name in a.__dataclass_fields__:
+        assert np.array_equal(getattr(a, name), getattr(b, name), equal_nan=True), name
+        assert np.array_equal(getattr(a, name), getattr(c, name), equal_nan=True), name
+
+
+def test_bad_io(rough_file):
+    with pytest.raises(ValueError, match="io must be 'records' or 'mmap'"):
+        pi.intersect(rough_file, [5000.0, 0, 0], [-1.0, 0, 0], dem_read_mode=1, io="cache")
+
+
+def test_mode1_reads_do_not_map_the_file(tmp_path):
+    """DEM.read checks the file with plain reads and mode 1 reads records with pread:
+    resident memory does not grow with the DEM. Measured in a child process that only
+    imports, reads and intersects; a control run that touches the memory map shows
+    that the measurement would see the file if it were mapped in."""
+    import subprocess
+    import sys
+    import textwrap
+
+    from planet_intersect.synthetic import rough_dem
+
+    hdr = rough_dem(ppd=16, base=3390.0, rms=3.0, seed=1).write(tmp_path / "big", dtype="float32")   # 66 MB
+
+    def grown_mb(touch_map: bool) -> float:
+        code = textwrap.dedent(f"""
+            import numpy as np, planet_intersect as pi
+            def hwm_kb():   # this address space's peak RSS (ru_maxrss would include the parent's)
+                return int(open("/proc/self/status").read().split("VmHWM:")[1].split()[0])
+            base = hwm_kb()
+            d = pi.DEM.read({str(hdr)!r})
+            s = np.array([5000.0, 0, 0]); l = np.array([[-1.0, 0.01 * k, 0.02] for k in range(50)])
+            pi.intersect(d, s, l, dem_read_mode=1)
+            if {touch_map}:
+                float(np.asarray(d.radii).sum())
+            print((hwm_kb() - base) / 1024)
+        """)
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+        assert out.returncode == 0, out.stderr
+        return float(out.stdout.strip().splitlines()[-1])
+
+    assert grown_mb(False) < 20.0
+    assert grown_mb(True) > 50.0      # control: a mapped and touched file does show

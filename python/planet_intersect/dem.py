@@ -93,11 +93,25 @@ def _check_parameters(ppd, rmax, f, re, where):
         raise DEMError(f"{where}: equatorial radius re must be positive and finite, got {re}")
 
 
-def _check_radii(radii: np.ndarray, rmax: float, where: str) -> float:
+def _row_blocks(radii):
+    """(first row, float64 block) over an array, or over a file as (path, dtype, shape):
+    a file is read with plain reads, so checking it never maps it into memory."""
+    if isinstance(radii, tuple):
+        path, dtype, (nlat, nlon) = radii
+        rows = max(1, (1 << 20) // (nlon * dtype.itemsize))      # 1 MB blocks: a small, fixed footprint
+        with open(path, "rb") as fh:
+            for j in range(0, nlat, rows):
+                n = min(rows, nlat - j)
+                yield j, np.fromfile(fh, dtype=dtype, count=n * nlon).reshape(n, nlon).astype(np.float64)
+    else:
+        for j in range(0, radii.shape[0], _BLOCK_ROWS):
+            yield j, np.asarray(radii[j:j + _BLOCK_ROWS], dtype=np.float64)
+
+
+def _check_radii(radii, rmax: float, where: str) -> float:
     """Check finite, positive radii not above rmax, block by block; return the maximum."""
     top = -math.inf
-    for j in range(0, radii.shape[0], _BLOCK_ROWS):
-        block = np.asarray(radii[j:j + _BLOCK_ROWS], dtype=np.float64)
+    for j, block in _row_blocks(radii):
         bad = ~np.isfinite(block)
         if bad.any():
             jj, ii = np.argwhere(bad)[0]
@@ -152,8 +166,8 @@ class DEM:
                 f"DEM data {dem}: size {size} bytes, but the header (ppd = {ppd}, {h['dtype']}) "
                 f"needs {nlat} x {nlon} x {itemsize} = {expected} bytes")
         dtype = np.dtype(h["dtype"]).newbyteorder(_BYTEORDERS[h["byteorder"]])
+        _check_radii((dem, dtype, (nlat, nlon)), h["rmax"], where=f"DEM data {dem}")
         radii = np.memmap(dem, dtype=dtype, mode="r", shape=(nlat, nlon))
-        _check_radii(radii, h["rmax"], where=f"DEM data {dem}")
         return cls(radii, ppd, h["rmax"], h["f"], h["re"], path=hdr)
 
     @classmethod

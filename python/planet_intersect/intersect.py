@@ -109,7 +109,8 @@ def _check_mode(value, name: str) -> int:
 
 
 def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
-              tangent: str = "exact", threads: int | None = None, method: str = "stepping") -> IntersectResult:
+              tangent: str = "exact", threads: int | None = None, method: str = "stepping",
+              io: str = "records") -> IntersectResult:
     """Intersect lines of sight with a DEM (the paper's zcalc_planet_intersect).
 
     Parameters
@@ -140,6 +141,11 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
         DEM); exact to 1e-9 rmax along the ray, never a later entry, never a
         miss of a chord longer than that. ``nsteps`` then counts the segments
         examined. Limb outputs are identical for both.
+    io : "records" or "mmap"
+        How dem_read_mode=1 reads the file: "records", one pread per record (the
+        paper's direct access; resident memory stays small whatever the DEM size);
+        "mmap", from a read-only memory map (faster; the kernel pages in what the
+        rays touch). Bit-identical results.
 
     Returns
     -------
@@ -159,6 +165,8 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
         raise TypeError(f"dem must be a planet_intersect.DEM, got {type(dem).__name__}")
     step_mode = _check_mode(step_mode, "step_mode")
     dem_read_mode = _check_mode(dem_read_mode, "dem_read_mode")
+    if io not in ("records", "mmap"):
+        raise ValueError(f"io must be 'records' or 'mmap', got {io!r}")
     if method not in _METHOD:
         raise ValueError(f"method must be 'stepping' or 'exact', got {method!r}")
     if tangent not in _TANGENT:
@@ -186,7 +194,7 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
             raise ValueError("dem_read_mode=1 reads records from the DEM's file: "
                              "this DEM is in memory (write it with dem.write() and DEM.read() it)")
         out = _core.core_intersect_file(str(dem.path), 1, s.T, l.T, step_mode, _TANGENT[tangent], pyr_data,
-                                        pyr_meta.T, **extra)
+                                        pyr_meta.T, use_map=int(io == "mmap"), **extra)
         where = f"intersect (dem_read_mode=1, {dem.path})"
     p, t, tc, sc, scal, status, nsteps, stat = out
     raise_for_stat(stat, where)
