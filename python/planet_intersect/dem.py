@@ -236,9 +236,10 @@ class DEM:
         south = np.sum(np.asarray(self.radii[0], dtype=np.float64)) / nlon
         north = np.sum(np.asarray(self.radii[-1], dtype=np.float64)) / nlon
         rows1 = (nlat + 2) // 2                       # ceil((nlat + 1) / 2) cell rows in pairs
-        level = np.empty((rows1, nlon))
-        for bc in range(0, rows1, _BLOCK_ROWS):       # extended node rows 2bc..2bc+2 (0 = south pole)
-            top = min(bc + _BLOCK_ROWS, rows1)
+        level = np.empty((rows1, nlon // 2))
+        step = max(1, (16 << 20) // (8 * nlon))       # row pairs per block: ~16 MB at a time
+        for bc in range(0, rows1, step):              # extended node rows 2bc..2bc+2 (0 = south pole)
+            top = min(bc + step, rows1)
             ext = np.empty((2 * (top - bc) + 1, nlon))
             for k, e in enumerate(range(2 * bc, 2 * top + 1)):
                 if e == 0:
@@ -249,8 +250,9 @@ class DEM:
                     ext[k] = north
                 else:
                     ext[k] = -np.inf
-            level[bc:top] = np.maximum(np.maximum(ext[0:-1:2], ext[1::2]), ext[2::2])
-        level = np.maximum(np.maximum(level[:, 0::2], level[:, 1::2]), np.roll(level, -1, axis=1)[:, 1::2])
+            rmax3 = np.maximum(np.maximum(ext[0:-1:2], ext[1::2]), ext[2::2])
+            # columns 2bi..2bi+2, wrapping at 0/360 E
+            level[bc:top] = np.maximum(np.maximum(rmax3[:, 0::2], rmax3[:, 1::2]), np.roll(rmax3, -1, axis=1)[:, 1::2])
         levels = [level]
         while level.shape[0] > 1 or level.shape[1] > 1:
             r, c = level.shape
