@@ -68,8 +68,8 @@ contains
     real(dp), intent(out) :: d_hit
     integer, intent(out) :: nodes, stat
     real(dp) :: stack(max_depth), a, b, mid, fm, fb, lo, hi, fx
-    integer :: top, it
-    logical :: excluded
+    integer :: top, it, cell_c, cell_i
+    logical :: excluded, found, done
 
     hit = .false.
     d_hit = 0.0_dp
@@ -87,6 +87,21 @@ contains
         a = b
         top = top - 1
         cycle
+      end if
+      if (cell_c >= 0) then
+        ! inside one cell: certified steps (a lower bound of the height from its
+        ! value, slope and a bound on its curvature) either reach b or the entry
+        call cell_search(a, b, cell_c, cell_i, found, done)
+        if (stat /= stat_ok) return
+        if (found) then
+          hit = .true.
+          return
+        end if
+        if (done) then
+          a = b
+          top = top - 1
+          cycle
+        end if
       end if
       if (b - a <= tol .or. top >= max_depth) then
         mid = 0.5_dp*(a + b)
@@ -123,6 +138,117 @@ contains
 
   contains
 
+    !> First entry of the ray into the surface over [a, b], which lies in cell
+    !> (c, i). With K >= |f''| on the cell (f = |g| - R along the ray):
+    !>   f(x + t) >= f(x) + f'(x) t - K t^2 / 2,
+    !> so no root lies before the positive root t* of the right-hand side; the
+    !> search moves x by t* (a Newton step from the safe side) until x passes b
+    !> (done, no entry) or the bound puts the surface within tol of x; then the
+    !> entry is bracketed and bisected (found). K comes from the bilinear patch:
+    !> R_tt = R_pp = 0, and along a line |theta'| <= 1/r, |phi'| <= 1/rho,
+    !> |theta''| <= (2 + |tan theta|)/r^2, |phi''| <= 2/rho^2, ||g|''| <= 1/r, so
+    !> |f''| <= 1/r + 2|R_tp|/(r rho) + |R_t| (2 + |tan theta|)/r^2 + 2|R_p|/rho^2.
+    !> If the steps stall (more than 200), done = .false. hands [a, b] back to
+    !> the subdivision.
+    subroutine cell_search(a, b, c, i, found, done)
+      real(dp), intent(in) :: a, b
+      integer, intent(in) :: c, i
+      logical, intent(out) :: found, done
+      real(dp) :: lat0, lat1, lon0, r1, r2, r3, r4, ky, kx, rt, rp, rtp, rlo, clo, tlo, k, x, f, fp
+      real(dp) :: g(3), gn, la, lo_, ct, st_, cp, sp_, nh(3), eh(3), rh, th1, fy, fxx, t, lo2, hi2, fx2, x2, x_prev
+      integer :: it2, j
+      found = .false.
+      done = .false.
+      ! the cell's latitude band and node radii (r1, r2 south; r3, r4 north)
+      if (c == 0) then
+        lat0 = -90.0_dp; lat1 = -90.0_dp + 0.5_dp/dem%ppd; ky = 2.0_dp*dem%ppd*deg
+      else if (c == dem%nlat) then
+        lat0 = 90.0_dp - 0.5_dp/dem%ppd; lat1 = 90.0_dp; ky = 2.0_dp*dem%ppd*deg
+      else
+        lat0 = -90.0_dp + (c - 0.5_dp)/dem%ppd; lat1 = lat0 + 1.0_dp/dem%ppd; ky = dem%ppd*deg
+      end if
+      kx = dem%ppd*deg
+      lon0 = (i + 0.5_dp)/dem%ppd
+      r1 = node(lat0, lon0); r2 = node(lat0, lon0 + 1.0_dp/dem%ppd)
+      r3 = node(lat1, lon0); r4 = node(lat1, lon0 + 1.0_dp/dem%ppd)
+      rt = max(abs(r3 - r1), abs(r4 - r2))*ky
+      rp = max(abs(r2 - r1), abs(r4 - r3))*kx
+      rtp = abs(r1 - r2 - r3 + r4)*ky*kx
+      rlo = norm2(s + min(max(-dot_product(s, l), a), b)*l)
+      th1 = max(abs(lat0), abs(lat1))*rad
+      clo = cos(th1)
+      if (clo <= 1.0e-9_dp) return                     ! at a pole: leave it to the subdivision
+      tlo = tan(th1)
+      k = (1.0_dp/rlo + 2.0_dp*rtp/(rlo*rlo*clo) + rt*(2.0_dp + tlo)/rlo**2 + 2.0_dp*rp/(rlo*clo)**2) &
+          *1.001_dp + 1.0e-12_dp
+      x = a
+      x_prev = a
+      do j = 1, 200
+        ! height and its slope at x, within this cell's patch
+        g = s + x*l
+        gn = norm2(g)
+        call latlon_of(g, la, lo_)
+        ct = cos(la); st_ = sin(la); cp = cos(lo_); sp_ = sin(lo_)
+        nh = [-st_*cp, -st_*sp_, ct]                   ! local north
+        eh = [-sp_, cp, 0.0_dp]                        ! local east
+        rh = gn*ct
+        fy = min(max((la*deg - lat0)/(lat1 - lat0), 0.0_dp), 1.0_dp)
+        fxx = lon_diff(lon0*rad, lo_)*deg*dem%ppd
+        if (fxx > 1.5_dp) fxx = 0.0_dp                 ! a hair west of the cell edge
+        fxx = min(max(fxx, 0.0_dp), 1.0_dp)
+        f = gn - (((r1 + fxx*(r2 - r1)) + fy*((r3 + fxx*(r4 - r3)) - (r1 + fxx*(r2 - r1)))))
+        fp = dot_product(g, l)/gn &
+             - ((r3 - r1)*(1.0_dp - fxx) + (r4 - r2)*fxx)*ky*dot_product(l, nh)/gn &
+             - ((r2 - r1)*(1.0_dp - fy) + (r4 - r3)*fy)*kx*dot_product(l, eh)/max(rh, 1.0e-300_dp)
+        if (f < 0.0_dp) then
+          ! below already (the bound is tight only to rounding): the entry lies after
+          ! x_prev, the last point known to be at or above the surface
+          lo2 = x_prev; hi2 = x
+          exit
+        end if
+        t = (fp + sqrt(fp*fp + 2.0_dp*k*f))/k       ! first zero of f + fp t - k t^2/2
+        if (x + t >= b) then
+          done = .true.
+          return
+        end if
+        if (t <= tol) then
+          ! the surface is within tol: look just ahead for the entry
+          x2 = min(x + tol, b)
+          fx2 = height(x2)
+          if (fx2 < 0.0_dp) then
+            lo2 = x; hi2 = x2
+            exit
+          end if
+          x_prev = x2
+          x = x2                                        ! a chord shorter than tol may be skipped
+          cycle
+        end if
+        x_prev = x
+        x = x + t
+      end do
+      if (j > 200) return                               ! stalled: subdivide instead
+      ! bisect [lo2, hi2] to the entry (height >= 0 at lo2 is not required: any root there is within tol)
+      do it2 = 1, 60
+        x2 = 0.5_dp*(lo2 + hi2)
+        if (height(x2) < 0.0_dp) then
+          hi2 = x2
+        else
+          lo2 = x2
+        end if
+        if (hi2 - lo2 <= 1.0e-15_dp*max(1.0_dp, abs(hi2))) exit
+      end do
+      d_hit = hi2
+      found = .true.
+    end subroutine cell_search
+
+    !> DEM radius at a node (degrees), through the same interpolation.
+    real(dp) function node(lat_deg, lon_deg)
+      real(dp), intent(in) :: lat_deg, lon_deg
+      integer :: st
+      call dem_radius(dem, lat_deg*rad, lon_deg*rad, node, st)
+      if (st /= stat_ok) stat = st
+    end function node
+
     !> |g(d)| - r(g(d)): negative below the surface.
     real(dp) function height(d)
       real(dp), intent(in) :: d
@@ -139,6 +265,7 @@ contains
     subroutine exclude(a, b, excluded)
       real(dp), intent(in) :: a, b
       logical, intent(out) :: excluded
+      integer :: c_one, i_one
       real(dp) :: dc, rmin, ga(3), gb(3), la_a, lo_a, la_b, lo_b, lat_lo, lat_hi, dstar, den, gs(3)
       real(dp) :: la_s, lo_s, sweep, rmax_box, x_a, span
       logical :: full_lon
@@ -174,15 +301,19 @@ contains
       x_a = lo_a
       if (sweep < 0.0_dp) x_a = lo_b          ! the interval [x_a, x_a + |sweep|]
       span = abs(sweep)
-      rmax_box = box_max(lat_lo, lat_hi, x_a, span, full_lon)
+      rmax_box = box_max(lat_lo, lat_hi, x_a, span, full_lon, c_one, i_one)
       excluded = rmin >= rmax_box
+      cell_c = c_one
+      cell_i = i_one
     end subroutine exclude
 
     !> Highest surface radius over latitudes [lat_lo, lat_hi] and east
     !> longitudes [lon0, lon0 + span] (radians; span < pi), or all longitudes.
-    real(dp) function box_max(lat_lo, lat_hi, lon0, span, full_lon) result(m)
+    real(dp) function box_max(lat_lo, lat_hi, lon0, span, full_lon, c_one, i_one) result(m)
       real(dp), intent(in) :: lat_lo, lat_hi, lon0, span
       logical, intent(in) :: full_lon
+      !> the cell row and column when the box lies in one cell, else -1
+      integer, intent(out) :: c_one, i_one
       integer :: c0, c1, i0, i1, ncell_c, ncell_i, k, bc0, bc1, bi0, bi1, bc, bi, ii
       real(dp) :: x0, x1, r, corners(2, 2)
       integer :: st, p, q
@@ -200,7 +331,11 @@ contains
       end if
       ncell_c = c1 - c0 + 1
       ncell_i = i1 - i0 + 1
+      c_one = -1
+      i_one = -1
       if (ncell_c == 1 .and. ncell_i == 1) then
+        c_one = c0
+        i_one = i0
         ! inside one cell: the bilinear maximum over the sub-box is at its corners
         do p = 1, 2
           do q = 1, 2
