@@ -67,8 +67,8 @@ contains
     logical, intent(out) :: hit
     real(dp), intent(out) :: d_hit
     integer, intent(out) :: nodes, stat
-    real(dp) :: stack(max_depth), a, b, mid, fm, fb, lo, hi, fx
-    integer :: top, it, cell_c, cell_i
+    real(dp) :: stack(max_depth), a, b, mid, fm, fb
+    integer :: top, cell_c, cell_i
     logical :: excluded, found, done
 
     hit = .false.
@@ -109,21 +109,9 @@ contains
         fb = height(b)
         if (stat /= stat_ok) return
         if (fm < 0.0_dp .or. fb < 0.0_dp) then
-          ! entry in [a, x], x the first tested point below the surface: bisect
-          lo = a
-          hi = merge(mid, b, fm < 0.0_dp)
-          do it = 1, 60
-            mid = 0.5_dp*(lo + hi)
-            fx = height(mid)
-            if (fx < 0.0_dp) then
-              hi = mid
-            else
-              lo = mid
-            end if
-            if (hi - lo <= 1.0e-15_dp*max(1.0_dp, abs(hi))) exit
-          end do
+          ! entry in [a, x], x the first tested point below the surface
           hit = .true.
-          d_hit = hi
+          d_hit = entry(a, merge(mid, b, fm < 0.0_dp))
           return
         end if
         a = b
@@ -156,7 +144,7 @@ contains
       logical, intent(out) :: found, done
       real(dp) :: lat0, lat1, lon0, r1, r2, r3, r4, ky, kx, rt, rp, rtp, rlo, clo, tlo, k, x, f, fp
       real(dp) :: g(3), gn, la, lo_, ct, st_, cp, sp_, nh(3), eh(3), rh, th1, fy, fxx, t, lo2, hi2, fx2, x2, x_prev
-      integer :: it2, j
+      integer :: j
       found = .false.
       done = .false.
       ! the cell's latitude band and node radii (r1, r2 south; r3, r4 north)
@@ -227,19 +215,29 @@ contains
         x = x + t
       end do
       if (j > 200) return                               ! stalled: subdivide instead
-      ! bisect [lo2, hi2] to the entry (height >= 0 at lo2 is not required: any root there is within tol)
-      do it2 = 1, 60
-        x2 = 0.5_dp*(lo2 + hi2)
-        if (height(x2) < 0.0_dp) then
-          hi2 = x2
-        else
-          lo2 = x2
-        end if
-        if (hi2 - lo2 <= 1.0e-15_dp*max(1.0_dp, abs(hi2))) exit
-      end do
-      d_hit = hi2
+      d_hit = entry(lo2, hi2)
       found = .true.
     end subroutine cell_search
+
+    !> Bisect [lo, hi], height(hi) < 0, to the entry: the returned point is below
+    !> the surface and within rounding of the last point found above it.
+    real(dp) function entry(lo_in, hi_in)
+      real(dp), intent(in) :: lo_in, hi_in
+      real(dp) :: lo, hi, m
+      integer :: it
+      lo = lo_in
+      hi = hi_in
+      do it = 1, 60
+        m = 0.5_dp*(lo + hi)
+        if (height(m) < 0.0_dp) then
+          hi = m
+        else
+          lo = m
+        end if
+        if (hi - lo <= 1.0e-15_dp*max(1.0_dp, abs(hi))) exit
+      end do
+      entry = hi
+    end function entry
 
     !> DEM radius at a node (degrees), through the same interpolation.
     real(dp) function node(lat_deg, lon_deg)

@@ -213,6 +213,17 @@ class DEM:
         where = f"path={str(self.path)!r}" if self.path else "in memory"
         return f"DEM(ppd={self.ppd}, rmax={self.rmax}, f={self.f}, re={self.re}, {where})"
 
+    def _read_rows(self, j0: int, j1: int) -> np.ndarray:
+        """Rows j0..j1-1 as float64; a file-backed DEM is read with plain reads (not
+        through its memory map, whose touched pages would stay resident)."""
+        if self.path is not None and isinstance(self.radii, np.memmap):
+            dtype = self.radii.dtype
+            with open(dem_paths(self.path)[1], "rb") as fh:
+                fh.seek(j0 * self.nlon * dtype.itemsize)
+                out = np.fromfile(fh, dtype=dtype, count=(j1 - j0) * self.nlon)
+            return out.reshape(j1 - j0, self.nlon).astype(np.float64)
+        return np.asarray(self.radii[j0:j1], dtype=np.float64)
+
     def radii64(self) -> np.ndarray:
         """The grid as a C-ordered float64 array (converted once and kept)."""
         if self._radii64 is None:
@@ -233,40 +244,42 @@ class DEM:
         if self._pyramid is not None:
             return self._pyramid
         nlat, nlon = self.nlat, self.nlon
-        south = np.sum(np.asarray(self.radii[0], dtype=np.float64)) / nlon
-        north = np.sum(np.asarray(self.radii[-1], dtype=np.float64)) / nlon
-        rows1 = (nlat + 2) // 2                       # ceil((nlat + 1) / 2) cell rows in pairs
-        level = np.empty((rows1, nlon // 2))
-        step = max(1, (16 << 20) // (8 * nlon))       # row pairs per block: ~16 MB at a time
-        for bc in range(0, rows1, step):              # extended node rows 2bc..2bc+2 (0 = south pole)
-            top = min(bc + step, rows1)
-            ext = np.empty((2 * (top - bc) + 1, nlon))
-            for k, e in enumerate(range(2 * bc, 2 * top + 1)):
-                if e == 0:
-                    ext[k] = south
-                elif e <= nlat:
-                    ext[k] = self.radii[e - 1]
-                elif e == nlat + 1:
-                    ext[k] = north
-                else:
-                    ext[k] = -np.inf
-            rmax3 = np.maximum(np.maximum(ext[0:-1:2], ext[1::2]), ext[2::2])
-            # columns 2bi..2bi+2, wrapping at 0/360 E
-            level[bc:top] = np.maximum(np.maximum(rmax3[:, 0::2], rmax3[:, 1::2]), np.roll(rmax3, -1, axis=1)[:, 1::2])
-        levels = [level]
-        while level.shape[0] > 1 or level.shape[1] > 1:
-            r, c = level.shape
-            pad = np.full((r + r % 2, c + c % 2), -np.inf)
-            pad[:r, :c] = level
-            level = np.maximum(np.maximum(pad[0::2, 0::2], pad[1::2, 0::2]), np.maximum(pad[0::2, 1::2], pad[1::2, 1::2]))
-            levels.append(level)
-        meta = np.zeros((len(levels), 3), dtype=np.int32)
-        offset = 0
-        for k, lv in enumerate(levels):
-            meta[k] = (lv.shape[0], lv.shape[1], offset)
-            offset += lv.size
-        data = np.concatenate([lv.ravel() for lv in levels])
-        data = np.nextafter(np.nextafter(data, np.inf), np.inf)
+        shapes = [((nlat + 2) // 2, nlon // 2)]            # level 1: cell rows 0..nlat in pairs
+        while shapes[-1] != (1, 1):
+            r, c = shapes[-1]
+            shapes.append(((r + 1) // 2, (c + 1) // 2))
+        sizes = [r * c for r, c in shapes]
+        offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+        data = np.empty(int(sum(sizes)))                    # all levels, written in place
+        meta = np.array([(r, c, o) for (r, c), o in zip(shapes, offsets)], dtype=np.int32)
+        level = data[:sizes[0]].reshape(shapes[0])
+        rows = self._read_rows
+        south = float(np.sum(rows(0, 1)[0])) / nlon
+        north = float(np.sum(rows(nlat - 1, nlat)[0])) / nlon
+        step = max(1, (8 << 20) // (8 * nlon))              # row pairs per block: ~8 MB of radii at a time
+        for bc in range(0, shapes[0][0], step):             # extended node rows 2bc..2bc+2 (0 = south pole)
+            top = min(bc + step, shapes[0][0])
+            e0, e1 = 2 * bc, 2 * top + 1                     # extended rows e0..e1-1; DEM row = e - 1
+            ext = np.full((e1 - e0, nlon), -np.inf)
+            lo, hi = max(e0, 1), min(e1, nlat + 1)
+            if hi > lo:
+                ext[lo - e0:hi - e0] = rows(lo - 1, hi - 1)
+            if e0 == 0:
+                ext[0] = south
+            if e0 <= nlat + 1 < e1:
+                ext[nlat + 1 - e0] = north
+            r3 = np.maximum(np.maximum(ext[0:-1:2], ext[1::2]), ext[2::2])
+            level[bc:top] = np.maximum(np.maximum(r3[:, 0::2], r3[:, 1::2]), np.roll(r3, -1, axis=1)[:, 1::2])
+        for k in range(1, len(shapes)):
+            fine = data[offsets[k - 1]:offsets[k - 1] + sizes[k - 1]].reshape(shapes[k - 1])
+            pairs = fine[0::2].copy()
+            pairs[:fine[1::2].shape[0]] = np.maximum(pairs[:fine[1::2].shape[0]], fine[1::2])
+            coarse = data[offsets[k]:offsets[k] + sizes[k]].reshape(shapes[k])
+            coarse[...] = pairs[:, 0::2]
+            odd = pairs[:, 1::2]
+            np.maximum(coarse[:, :odd.shape[1]], odd, out=coarse[:, :odd.shape[1]])
+        np.nextafter(data, np.inf, out=data)                 # two ulps up: rounding can never make it low
+        np.nextafter(data, np.inf, out=data)
         self._pyramid = (data, meta)
         return self._pyramid
 
