@@ -55,6 +55,11 @@ def test_run_subcommand(tmp_path, rough):
     r = run_cli("run", hdr, rays, "--out", tmp_path / "o")
     assert r.returncode == 0, r.stderr
     assert "3 rays: 1 hit, 1 limb, 1 away" in r.stdout
+    r = run_cli("run", hdr, rays, "--out", tmp_path / "o", "--method", "exact", "--threads", "1",
+                "--dem-read-mode", "1", "--io", "mmap")
+    assert r.returncode == 0 and "3 rays: 1 hit, 1 limb, 1 away" in r.stdout, r.stderr
+    r = run_cli("run", hdr, rays, "--threads", "-2")
+    assert r.returncode == 2 and "threads must be a non-negative integer" in r.stderr
     xr = pytest.importorskip("xarray")
     ds = xr.open_dataset(tmp_path / "o" / "run-001" / "results.nc", engine="h5netcdf")
     res = pi.intersect(pi.DEM.read(hdr), [5000, 0, 0], [[-1, 0, 0], [1, 0, 0], [-1, 1, 0]])

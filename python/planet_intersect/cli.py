@@ -2,6 +2,7 @@
 
     planet-intersect demo [--out DIR] [--ppd N] [--pixels N]
     planet-intersect run DEM RAYS [--out DIR] [--step-mode 0|1] [--dem-read-mode 0|1] [--tangent exact|paper]
+                         [--method stepping|exact] [--threads N] [--io records|mmap]
     planet-intersect examples olympus|limb [--dem HDR | --mola IMG] [--out DIR]
     planet-intersect import-mola OUT (--radius IMG | --topography IMG --areoid IMG) [--overwrite]
     planet-intersect fetch-mola DEST [--product megr90n000cb|megr90n000eb]
@@ -171,7 +172,7 @@ def _run(args) -> int:
     dem = DEM.read(args.dem)
     s, l = _read_rays(Path(args.rays))
     res = intersect_in_chunks(dem, s, l, step_mode=args.step_mode, dem_read_mode=args.dem_read_mode,
-                              tangent=args.tangent)
+                              tangent=args.tangent, method=args.method, threads=args.threads, io=args.io)
     out = _new_run_dir(Path(args.out))
     write_csv(out / "results.csv", res)
     written = [out / "results.csv"]
@@ -262,7 +263,13 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--out", default="planet-intersect-output", help="results go to a new run-NNN folder here")
     r.add_argument("--step-mode", type=int, choices=(0, 1), default=1)
     r.add_argument("--dem-read-mode", type=int, choices=(0, 1), default=0)
-    r.add_argument("--tangent", choices=("exact", "paper"), default="exact")
+    r.add_argument("--tangent", choices=("exact", "paper"), default="exact",
+                   help="spheroid tangent point: true nearest point (default) or the paper's eqs. 55-58")
+    r.add_argument("--method", choices=("stepping", "exact"), default="stepping",
+                   help="the paper's ray stepping (default) or the exact first hit")
+    r.add_argument("--threads", type=int, default=0, help="OpenMP threads (default 0: all cores)")
+    r.add_argument("--io", choices=("records", "mmap"), default="records",
+                   help="with --dem-read-mode 1: one read per record (default) or a memory map")
     r.set_defaults(func=_run)
     e = sub.add_parser("examples", help="the paper's Mars examples: olympus (Fig. 8) or limb (Fig. 9), on MOLA")
     e.add_argument("which", choices=("olympus", "limb"))
