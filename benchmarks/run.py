@@ -92,27 +92,17 @@ def mola_dem_path() -> Path | None:
 
 # --------------------------------------------------------------------------- scenes
 def scene(name: str, dem, nrays: int):
-    from planet_intersect import examples
+    """(s, l) of a scene: the two examples' geometries, or random rays over the globe."""
+    from planet_intersect.examples import limb_geometry, olympus_geometry
     from planet_intersect.synthetic import MARS_MEAN_RADIUS
 
     if name == "olympus":
-        ex_s, ex_l = _olympus_geometry()
-        return np.broadcast_to(ex_s, ex_l.shape).copy(), ex_l
+        s, l = olympus_geometry()
+        return np.broadcast_to(s, l.shape).copy(), l
     if name == "limb":
         frames = max(1, nrays // 21)
-        lat_end = -20.0 + 30.0 * (frames - 1) / max(frames - 1, 1)
-        r_s = MARS_MEAN_RADIUS + 300.0
-        lats = np.linspace(-20.0, lat_end, frames)
-        dist = np.sqrt(r_s ** 2 - MARS_MEAN_RADIUS ** 2)
-        elev = -np.arccos(MARS_MEAN_RADIUS / r_s) + np.linspace(-25, 75, 21) / dist
-        S, L = [], []
-        lon = np.radians(226.2)
-        for la in np.radians(lats):
-            s = r_s * np.array([np.cos(la) * np.cos(lon), np.cos(la) * np.sin(lon), np.sin(la)])
-            north = np.array([-np.sin(la) * np.cos(lon), -np.sin(la) * np.sin(lon), np.cos(la)])
-            S.append(np.repeat(s[None], 21, 0))
-            L.append(np.cos(elev)[:, None] * north + np.sin(elev)[:, None] * s / r_s)
-        return np.concatenate(S), np.concatenate(L)
+        S, L = limb_geometry(np.linspace(-20.0, 10.0, frames))
+        return np.repeat(S, 21, axis=0), L.reshape(-1, 3)
     if name == "global":
         rng = np.random.default_rng(5)
         u = rng.standard_normal((nrays, 3))
@@ -123,26 +113,6 @@ def scene(name: str, dem, nrays: int):
         s = u * (MARS_MEAN_RADIUS + rng.uniform(300, 2000, nrays))[:, None] + 300 * v
         return s, target - s
     raise ValueError(name)
-
-
-def _olympus_geometry():
-    from planet_intersect.synthetic import MARS_MEAN_RADIUS, OLYMPUS
-    from planet_intersect.geometry import detector_los
-
-    # as examples.olympus: due south, 325 km up, centre pixel 20 deg off nadir
-    lat0, lon0 = np.radians(OLYMPUS)
-    xyz = lambda la, lo, r: r * np.array([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)])
-    target = xyz(lat0, lon0, MARS_MEAN_RADIUS)
-    lo_, hi_ = 0.0, np.radians(30.0)
-    for _ in range(60):
-        mid = 0.5 * (lo_ + hi_)
-        s = xyz(lat0 - mid, lon0, MARS_MEAN_RADIUS + 325.0)
-        v = target - s
-        ang = np.arccos(np.dot(-s, v) / (np.linalg.norm(s) * np.linalg.norm(v)))
-        lo_, hi_ = (mid, hi_) if ang < np.radians(20.0) else (lo_, mid)
-    l0 = (target - s) / np.linalg.norm(target - s)
-    q = np.array([0, 0, 1.0]) - l0[2] * l0
-    return s, detector_los(l0, q / np.linalg.norm(q), 101, 101, 0.015, 0.015)
 
 
 # --------------------------------------------------------------------------- one measurement

@@ -21,7 +21,8 @@ from .geometry import detector_los, ray_spheroid_intersection, spheroid_radius
 from .intersect import IntersectResult, intersect
 from .synthetic import MARS_MEAN_RADIUS, OLYMPUS
 
-__all__ = ["planck", "brightness_temperature", "OlympusResult", "olympus", "LimbResult", "limb",
+__all__ = ["planck", "brightness_temperature", "OlympusResult", "olympus", "olympus_geometry", "LimbResult",
+           "limb", "limb_geometry",
            "plot_olympus", "plot_limb"]
 
 H = 6.62607015e-34      # Planck constant, J s
@@ -62,18 +63,11 @@ class OlympusResult:
     lapse_se: float
 
 
-def olympus(dem: DEM, *, nh: int = 101, nv: int = 101, pixel: float = 0.015, altitude: float = 325.0,
-            off_nadir_deg: float = 20.0, T0: float = 260.0, lapse: float = 2.0, wavelength: float = 12e-6,
-            noise_K: float = 0.5, seed: int = 2008, step_mode: int = 1) -> OlympusResult:
-    """Example 1 (Fig. 8): oblique view of Olympus Mons, lapse rate from brightness temperatures.
-
-    The spacecraft is on the meridian of the volcano (due south of it), ``altitude``
-    km above the mean radius 3389.5 km, placed so that the centre pixel, aimed at the
-    volcano, is ``off_nadir_deg`` from nadir (20 deg keeps the 1.5 rad field of view
-    below the horizon). The array's vertical side points north in the image.
-    Radiance noise is Gaussian with the standard deviation that ``noise_K`` of
-    temperature makes at T0 (NE-dT), from ``numpy.random.default_rng(seed)``.
-    """
+def olympus_geometry(nh: int = 101, nv: int = 101, pixel: float = 0.015, altitude: float = 325.0,
+                     off_nadir_deg: float = 20.0):
+    """Example 1's viewing geometry: ``(s, los)`` for a detector due south of Olympus Mons,
+    ``altitude`` km above the mean radius, its centre pixel aimed at the volcano on the
+    mean sphere ``off_nadir_deg`` from nadir, vertical side towards north in the image."""
     lat0, lon0 = OLYMPUS
     target = _xyz(lat0, lon0, MARS_MEAN_RADIUS)
     r_s = MARS_MEAN_RADIUS + altitude
@@ -91,7 +85,22 @@ def olympus(dem: DEM, *, nh: int = 101, nv: int = 101, pixel: float = 0.015, alt
     l0 = (target - s) / np.linalg.norm(target - s)
     north = np.array([0.0, 0.0, 1.0])
     q = north - np.dot(north, l0) * l0
-    los = detector_los(l0, q / np.linalg.norm(q), nh, nv, pixel, pixel)
+    return s, detector_los(l0, q / np.linalg.norm(q), nh, nv, pixel, pixel)
+
+
+def olympus(dem: DEM, *, nh: int = 101, nv: int = 101, pixel: float = 0.015, altitude: float = 325.0,
+            off_nadir_deg: float = 20.0, T0: float = 260.0, lapse: float = 2.0, wavelength: float = 12e-6,
+            noise_K: float = 0.5, seed: int = 2008, step_mode: int = 1) -> OlympusResult:
+    """Example 1 (Fig. 8): oblique view of Olympus Mons, lapse rate from brightness temperatures.
+
+    The spacecraft is on the meridian of the volcano (due south of it), ``altitude``
+    km above the mean radius 3389.5 km, placed so that the centre pixel, aimed at the
+    volcano, is ``off_nadir_deg`` from nadir (20 deg keeps the 1.5 rad field of view
+    below the horizon). The array's vertical side points north in the image.
+    Radiance noise is Gaussian with the standard deviation that ``noise_K`` of
+    temperature makes at T0 (NE-dT), from ``numpy.random.default_rng(seed)``.
+    """
+    s, los = olympus_geometry(nh=nh, nv=nv, pixel=pixel, altitude=altitude, off_nadir_deg=off_nadir_deg)
     res = intersect(dem, s, los, step_mode=step_mode)
 
     z = res.radius - MARS_MEAN_RADIUS                       # altitude above the mean surface
@@ -126,6 +135,28 @@ class LimbResult:
         return getattr(self.res, name).reshape(self.nframes, self.npix)
 
 
+def limb_geometry(lats, lon: float = OLYMPUS[1], altitude: float = 300.0, npix: int = 21,
+                  tangent_range=(-25.0, 75.0)):
+    """Example 2's viewing geometry: spacecraft positions (nframes, 3) at latitudes
+    ``lats`` on the meridian ``lon``, ``altitude`` km above the mean radius, and their
+    lines of sight (nframes, npix, 3), forward along the meridian, pixel 0 lowest,
+    spaced so that over the mean sphere the tangent heights run evenly over
+    ``tangent_range`` km."""
+    r_s = MARS_MEAN_RADIUS + altitude
+    dist = np.sqrt(r_s ** 2 - MARS_MEAN_RADIUS ** 2)               # to the mean-sphere limb
+    dip = np.arccos(MARS_MEAN_RADIUS / r_s)                        # limb below the horizontal
+    heights = np.linspace(tangent_range[0], tangent_range[1], npix)
+    elevation = -dip + heights / dist                              # pixel elevation angles
+    S, L = [], []
+    for la in np.atleast_1d(lats):
+        s = _xyz(la, lon, r_s)
+        up = s / r_s
+        north = _xyz(la + 90.0, lon, 1.0)                          # forward, along the meridian
+        S.append(s)
+        L.append(np.cos(elevation)[:, None] * north + np.sin(elevation)[:, None] * up)
+    return np.array(S), np.array(L)
+
+
 def limb(dem: DEM, *, lon: float = OLYMPUS[1], lat_start: float = -20.0, lat_end: float = 10.0,
          frame_step: float = 0.25, altitude: float = 300.0, npix: int = 21,
          tangent_range=(-25.0, 75.0), step_mode: int = 1) -> LimbResult:
@@ -137,20 +168,8 @@ def limb(dem: DEM, *, lon: float = OLYMPUS[1], lat_start: float = -20.0, lat_end
     horizon, spaced so that over a smooth mean sphere their tangent heights would
     run evenly over ``tangent_range`` km (pixel 0 lowest).
     """
-    r_s = MARS_MEAN_RADIUS + altitude
     lats = np.arange(lat_start, lat_end + 1e-9, frame_step)
-    dist = np.sqrt(r_s ** 2 - MARS_MEAN_RADIUS ** 2)               # to the mean-sphere limb
-    dip = np.arccos(MARS_MEAN_RADIUS / r_s)                        # limb below the horizontal
-    heights = np.linspace(tangent_range[0], tangent_range[1], npix)
-    elevation = -dip + heights / dist                              # pixel elevation angles
-    S, L = [], []
-    for la in lats:
-        s = _xyz(la, lon, r_s)
-        up = s / r_s
-        north = _xyz(la + 90.0, lon, 1.0)                          # forward, along the meridian
-        S.append(s)
-        L.append(np.cos(elevation)[:, None] * north + np.sin(elevation)[:, None] * up)
-    S, L = np.array(S), np.array(L)
+    S, L = limb_geometry(lats, lon=lon, altitude=altitude, npix=npix, tangent_range=tangent_range)
     s_all = np.repeat(S, npix, axis=0)
     l_all = L.reshape(-1, 3)
     res = intersect(dem, s_all, l_all, step_mode=step_mode)
