@@ -67,7 +67,7 @@ contains
     logical, intent(out) :: hit
     real(dp), intent(out) :: d_hit
     integer, intent(out) :: nodes, stat
-    real(dp) :: stack(max_depth), a, b, mid, fm, fb
+    real(dp) :: stack(3, max_depth), a, b, mid, fm, fb, la_a, lo_a, la_b, lo_b
     integer :: top, cell_c, cell_i
     logical :: excluded, found, done
 
@@ -75,16 +75,22 @@ contains
     d_hit = 0.0_dp
     nodes = 0
     stat = stat_ok
+    ! the stack holds segment ends with their latitude and longitude, so that each
+    ! point along the ray is converted once
     a = d_start
+    call latlon_of(s + a*l, la_a, lo_a)
     top = 1
-    stack(1) = d_end
+    stack(1, 1) = d_end
+    call latlon_of(s + d_end*l, stack(2, 1), stack(3, 1))
     do while (top > 0)
-      b = stack(top)
+      b = stack(1, top)
+      la_b = stack(2, top)
+      lo_b = stack(3, top)
       nodes = nodes + 1
       call exclude(a, b, excluded)
       if (stat /= stat_ok) return
       if (excluded) then
-        a = b
+        a = b; la_a = la_b; lo_a = lo_b
         top = top - 1
         cycle
       end if
@@ -98,7 +104,7 @@ contains
           return
         end if
         if (done) then
-          a = b
+          a = b; la_a = la_b; lo_a = lo_b
           top = top - 1
           cycle
         end if
@@ -114,14 +120,15 @@ contains
           d_hit = entry(a, merge(mid, b, fm < 0.0_dp))
           return
         end if
-        a = b
+        a = b; la_a = la_b; lo_a = lo_b
         top = top - 1
         cycle
       end if
       ! split: search [a, mid] first, then [mid, b]
       mid = 0.5_dp*(a + b)
       top = top + 1
-      stack(top) = mid
+      stack(1, top) = mid
+      call latlon_of(s + mid*l, stack(2, top), stack(3, top))
     end do
 
   contains
@@ -264,7 +271,7 @@ contains
       real(dp), intent(in) :: a, b
       logical, intent(out) :: excluded
       integer :: c_one, i_one
-      real(dp) :: dc, rmin, ga(3), gb(3), la_a, lo_a, la_b, lo_b, lat_lo, lat_hi, dstar, den, gs(3)
+      real(dp) :: dc, rmin, ga(3), gb(3), lat_lo, lat_hi, dstar, den, gs(3)
       real(dp) :: la_s, lo_s, sweep, rmax_box, x_a, span
       logical :: full_lon
       ! smallest distance of the segment from the centre
@@ -276,8 +283,6 @@ contains
       end if
       ga = s + a*l
       gb = s + b*l
-      call latlon_of(ga, la_a, lo_a)
-      call latlon_of(gb, la_b, lo_b)
       lat_lo = min(la_a, la_b)
       lat_hi = max(la_a, la_b)
       ! the one interior extremum of latitude along a line (d/dd of z/|g| = 0)
