@@ -68,20 +68,20 @@ subroutine core_intersect_file(path, read_mode, n, s, l, step_mode, tangent_mode
 end subroutine core_intersect_file
 
 !> DEM radius (eqs. 2-12) at n points (radians) of a grid held in memory.
-subroutine core_radius_grid(nlon, nlat, radii, ppd, n, lat, lon, r, stat)
+subroutine core_radius_grid(nlon, nlat, radii, ppd, rmax, n, lat, lon, r, stat)
   use pi_kinds, only: dp
   use pi_dem, only: dem_t, dem_attach, dem_radius
   use pi_status, only: stat_ok
   implicit none
   integer, intent(in) :: nlon, nlat, ppd, n
   real(dp), intent(in), target :: radii(nlon, nlat)
-  real(dp), intent(in) :: lat(n), lon(n)
+  real(dp), intent(in) :: rmax, lat(n), lon(n)
   real(dp), intent(out) :: r(n)
   integer, intent(out) :: stat
   type(dem_t) :: dem
   integer :: k
   r = 0.0_dp
-  call dem_attach(radii, ppd, maxval(radii), 0.0_dp, 1.0_dp, dem, stat)
+  call dem_attach(radii, ppd, rmax, 0.0_dp, 1.0_dp, dem, stat)
   if (stat /= stat_ok) return
   do k = 1, n
     call dem_radius(dem, lat(k), lon(k), r(k), stat)

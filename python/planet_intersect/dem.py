@@ -337,6 +337,7 @@ class DEM:
             raise ValueError("lat/lon: NaN or Inf values")
         if (np.abs(flat_lat) > 90).any():
             raise ValueError("lat: values outside [-90, 90] degrees")
-        r, stat = _core.core_radius_grid(self.radii64().T, self.ppd, np.radians(flat_lat), np.radians(flat_lon))
+        r, stat = _core.core_radius_grid(self.radii64().T, self.ppd, self.rmax, np.radians(flat_lat),
+                                         np.radians(flat_lon))
         raise_for_stat(stat, "DEM.radius")
         return r.reshape(shape)

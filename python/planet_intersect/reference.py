@@ -236,7 +236,7 @@ def intersect(radii, ppd, rmax, f, re, s, l, step_mode=1):
         out["p"][hit] = ph
         out["lat"][hit], out["lon"][hit] = _latlon(ph)                      # eqs. 42-43
         out["radius"][hit] = np.linalg.norm(ph, axis=1)                     # eq. 44
-        normal = ph / np.array([1.0, 1.0, 1.0]) * np.array([1.0, 1.0, 1.0 / (1.0 - e2)])  # eq. 50
+        normal = ph * np.array([1.0, 1.0, 1.0 / (1.0 - e2)])                 # eq. 50
         out["emission"][hit] = np.degrees(_angle(normal, -l[hit]))          # eq. 45
 
     # rays that miss
