@@ -67,21 +67,23 @@ contains
     logical, intent(out) :: hit
     real(dp), intent(out) :: d_hit
     integer, intent(out) :: nodes, stat
-    real(dp) :: stack(3, max_depth), a, b, mid, fm, fb, la_a, lo_a, la_b, lo_b
-    integer :: top, cell_c, cell_i
-    logical :: excluded, found, done
+    real(dp) :: stack(6, max_depth), a, b, mid, fm, fb, la_a, lo_a, la_b, lo_b
+    integer :: top, cell_c, cell_i, box_c0, box_c1, box_i0, box_i1
+    logical :: excluded, found, done, box_full, split_ok
 
     hit = .false.
     d_hit = 0.0_dp
     nodes = 0
     stat = stat_ok
     ! the stack holds segment ends with their latitude and longitude, so that each
-    ! point along the ray is converted once
+    ! point along the ray is converted once, and where the next segment resumes
+    ! (after a gap shorter than tol/4 at a block boundary; see split_at_boundary)
     a = d_start
     call latlon_of(s + a*l, la_a, lo_a)
     top = 1
     stack(1, 1) = d_end
     call latlon_of(s + d_end*l, stack(2, 1), stack(3, 1))
+    stack(4:6, 1) = stack(1:3, 1)
     do while (top > 0)
       b = stack(1, top)
       la_b = stack(2, top)
@@ -90,8 +92,7 @@ contains
       call exclude(a, b, excluded)
       if (stat /= stat_ok) return
       if (excluded) then
-        a = b; la_a = la_b; lo_a = lo_b
-        top = top - 1
+        call resume()
         cycle
       end if
       if (cell_c >= 0) then
@@ -104,8 +105,7 @@ contains
           return
         end if
         if (done) then
-          a = b; la_a = la_b; lo_a = lo_b
-          top = top - 1
+          call resume()
           cycle
         end if
       end if
@@ -120,18 +120,159 @@ contains
           d_hit = entry(a, merge(mid, b, fm < 0.0_dp))
           return
         end if
-        a = b; la_a = la_b; lo_a = lo_b
-        top = top - 1
+        call resume()
         cycle
       end if
-      ! split: search [a, mid] first, then [mid, b]
-      mid = 0.5_dp*(a + b)
+      ! split: search the earlier part first. At the coarsest pyramid block boundary
+      ! that the segment's box crosses, each part then lies in fewer and smaller
+      ! blocks (a top-down walk of the pyramid); where no boundary is crossed, at
+      ! the middle
       top = top + 1
-      stack(1, top) = mid
-      call latlon_of(s + mid*l, stack(2, top), stack(3, top))
+      call split_at_boundary(a, b, stack(:, top), split_ok)
+      if (.not. split_ok) then
+        mid = 0.5_dp*(a + b)
+        stack(1, top) = mid
+        call latlon_of(s + mid*l, stack(2, top), stack(3, top))
+        stack(4:6, top) = stack(1:3, top)
+      end if
     end do
 
   contains
+
+    !> The segment ending at the top of the stack is done: move on to where the
+    !> next one starts.
+    subroutine resume()
+      a = stack(4, top); la_a = stack(5, top); lo_a = stack(6, top)
+      top = top - 1
+    end subroutine resume
+
+    !> Split [a, b] where the ray crosses the coarsest block boundary of the box
+    !> found by the last exclude (a latitude cone or a meridian half-plane):
+    !> entry(1:3) = the last point on a's side (distance, latitude, longitude),
+    !> entry(4:6) = the first point past the boundary. The two are found by
+    !> stepping out from the computed crossing until cell_row/col_of put them on
+    !> either side; the gap between them (under tol/4) is not searched, which
+    !> the guarantee allows (a chord shorter than tol). ok = .false. if the box
+    !> crosses no boundary or the crossing cannot be placed: split at the middle.
+    subroutine split_at_boundary(a, b, entry_out, ok)
+      real(dp), intent(in) :: a, b
+      real(dp), intent(out) :: entry_out(6)
+      logical, intent(out) :: ok
+      integer :: hr, hc, cb, ib, k
+      real(dp) :: ga(3), phi, lam, sp2, cp2, qa, qb, qc, disc, q, t, t1, t2, nrm(3), dn, x, dx, la, lo, len
+      logical :: by_row, side_a
+      ok = .false.
+      hr = -1
+      hc = -1
+      if (box_c1 > box_c0) hr = bit_size(box_c0) - 1 - leadz(ieor(box_c0, box_c1))
+      if (.not. box_full) then
+        if (box_i1 >= dem%nlon) then
+          hc = huge(1)                                  ! the 0/360 E seam bounds blocks of every level
+        else if (box_i1 > box_i0) then
+          hc = bit_size(box_i0) - 1 - leadz(ieor(box_i0, box_i1))
+        end if
+      end if
+      if (hr < 0 .and. hc < 0) return
+      len = b - a
+      ga = s + a*l
+      by_row = hr >= hc
+      t = -1.0_dp
+      if (by_row) then
+        ! latitude cone phi: cos^2 phi z^2 = sin^2 phi (x^2 + y^2), z on phi's side
+        cb = ishft(ishft(box_c1, -hr), hr)              ! first row of the upper block
+        phi = (-90.0_dp + (cb - 0.5_dp)/dem%ppd)*rad
+        sp2 = sin(phi)**2
+        cp2 = cos(phi)**2
+        qa = cp2*l(3)**2 - sp2*(l(1)**2 + l(2)**2)
+        qb = 2.0_dp*(cp2*ga(3)*l(3) - sp2*(ga(1)*l(1) + ga(2)*l(2)))
+        qc = cp2*ga(3)**2 - sp2*(ga(1)**2 + ga(2)**2)
+        disc = qb*qb - 4.0_dp*qa*qc
+        if (disc < 0.0_dp) return
+        q = -0.5_dp*(qb + sign(sqrt(disc), qb))
+        t1 = -1.0_dp
+        t2 = -1.0_dp
+        if (qa /= 0.0_dp) t1 = q/qa
+        if (q /= 0.0_dp) t2 = qc/q
+        ! keep the roots inside the segment and on phi's nappe of the cone
+        if (.not. (t1 > 0.0_dp .and. t1 < len .and. (ga(3) + t1*l(3))*phi > 0.0_dp)) t1 = -1.0_dp
+        if (.not. (t2 > 0.0_dp .and. t2 < len .and. (ga(3) + t2*l(3))*phi > 0.0_dp)) t2 = -1.0_dp
+        if (t1 > 0.0_dp .and. t2 > 0.0_dp) then
+          t = min(t1, t2)
+        else
+          t = max(t1, t2)
+        end if
+        ib = 0
+        side_a = cell_row(la_a) >= cb
+      else
+        ! meridian half-plane lam: (x, y) . (-sin lam, cos lam) = 0, (x, y) . (cos lam, sin lam) > 0
+        if (hc == huge(1)) then
+          ib = dem%nlon
+        else
+          ib = ishft(ishft(box_i1, -hc), hc)
+        end if
+        lam = (ib + 0.5_dp)/dem%ppd*rad
+        nrm = [-sin(lam), cos(lam), 0.0_dp]
+        dn = dot_product(l, nrm)
+        if (dn == 0.0_dp) return
+        t = -dot_product(ga, nrm)/dn
+        if ((ga(1) + t*l(1))*cos(lam) + (ga(2) + t*l(2))*sin(lam) <= 0.0_dp) return
+        cb = 0
+        side_a = col_past(lo_a, ib)
+      end if
+      if (.not. (t > 0.0_dp .and. t < len)) return
+      x = a + t
+      ! step out from x until the two points fall on either side
+      entry_out(1) = -1.0_dp
+      entry_out(4) = -1.0_dp
+      dx = tol/512.0_dp
+      call latlon_of(s + x*l, la, lo)
+      if (past(by_row, cb, ib, la, lo) .eqv. side_a) then
+        entry_out(1:3) = [x, la, lo]
+      else
+        entry_out(4:6) = [x, la, lo]
+      end if
+      do k = 1, 8
+        if (entry_out(1) < 0.0_dp) then
+          x = entry_out(4) - dx
+          if (x <= a) return
+          call latlon_of(s + x*l, la, lo)
+          if (past(by_row, cb, ib, la, lo) .eqv. side_a) entry_out(1:3) = [x, la, lo]
+        else if (entry_out(4) < 0.0_dp) then
+          x = entry_out(1) + dx
+          if (x >= b) return
+          call latlon_of(s + x*l, la, lo)
+          if (.not. (past(by_row, cb, ib, la, lo) .eqv. side_a)) entry_out(4:6) = [x, la, lo]
+        else
+          exit
+        end if
+        dx = 2.0_dp*dx
+      end do
+      ok = entry_out(1) > a .and. entry_out(4) > entry_out(1) .and. entry_out(4) < b
+    end subroutine split_at_boundary
+
+    !> Whether the point at latitude/longitude (la, lo) lies past boundary row cb
+    !> (by_row) or column ib.
+    logical function past(by_row, cb, ib, la, lo)
+      logical, intent(in) :: by_row
+      integer, intent(in) :: cb, ib
+      real(dp), intent(in) :: la, lo
+      if (by_row) then
+        past = cell_row(la) >= cb
+      else
+        past = col_past(lo, ib)
+      end if
+    end function past
+
+    !> Whether east longitude lon (radians) lies in a cell column at or past ib,
+    !> counting columns from box_i0 eastwards across the seam.
+    logical function col_past(lon, ib)
+      real(dp), intent(in) :: lon
+      integer, intent(in) :: ib
+      integer :: u
+      u = min(int(lon_diff(rad*0.5_dp/dem%ppd, lon)*deg*dem%ppd), dem%nlon - 1)
+      if (u < box_i0) u = u + dem%nlon
+      col_past = u >= ib
+    end function col_past
 
     !> First entry of the ray into the surface over [a, b], which lies in cell
     !> (c, i). With K >= |f''| on the cell (f = |g| - R along the ray):
@@ -334,6 +475,11 @@ contains
       end if
       ncell_c = c1 - c0 + 1
       ncell_i = i1 - i0 + 1
+      box_c0 = c0
+      box_c1 = c1
+      box_i0 = i0
+      box_i1 = i1
+      box_full = full_lon
       c_one = -1
       i_one = -1
       if (ncell_c == 1 .and. ncell_i == 1) then
