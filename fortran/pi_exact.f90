@@ -8,18 +8,25 @@
 !> radius bordering the block. A ray segment [a, b] cannot enter the surface if
 !> its smallest distance from the centre is at or above the highest surface
 !> radius over the latitude/longitude box the segment can touch; otherwise it is
-!> split in two and the earlier half is searched first. A segment shorter than
-!> `tol` that cannot be excluded is tested at its middle and end; the first with
-!> |g| < r is the hit, refined by bisection.
+!> split where it crosses the coarsest block boundary inside its box (a
+!> latitude cone or a meridian half-plane), or in the middle when the box lies
+!> in one block, and the earlier part is searched first: a top-down walk of the
+!> pyramid along the ray. A segment inside one cell is searched by certified
+!> Newton steps on the cell's bilinear patch (cell_search). A segment shorter
+!> than `tol` that cannot be excluded is tested at its middle and end; the
+!> first with |g| < r is the hit, refined by bisection.
 !>
 !> Guarantee: every part of the ray before the returned point is either proven
-!> above the surface, or lies in a tested leaf shorter than tol: the hit is the
-!> first entry into the surface except for chords shorter than tol along the
-!> ray, and lies within tol of that entry. No hit is reported where |g| >= r.
+!> above the surface, or lies in a tested leaf shorter than tol, or in a gap
+!> shorter than tol/4 at a block boundary: the hit is the first entry into the
+!> surface except for chords shorter than tol along the ray, and lies within
+!> tol of that entry. The returned point is below the surface (|g| < r) and
+!> within tol/1000 of a point found at or above it. No hit is reported where
+!> |g| >= r.
 module pi_exact
   use pi_kinds, only: dp, i8
   use pi_status
-  use pi_vector, only: rad, deg, lon_diff, latlon_of, pi
+  use pi_vector, only: rad, deg, lon_diff, pi
   use pi_dem, only: dem_t, dem_radius
   implicit none
   private
@@ -40,6 +47,18 @@ module pi_exact
   integer, parameter :: max_depth = 200
 
 contains
+
+  !> Planetocentric latitude and east longitude [0, 2 pi) of x (radians): the
+  !> same as pi_vector's latlon_of, with sqrt for hypot (x is never near
+  !> overflow here, and glibc's hypot costs a tenth of the search).
+  pure subroutine ll(x, lat, lon)
+    real(dp), intent(in) :: x(3)
+    real(dp), intent(out) :: lat, lon
+    lat = atan2(x(3), sqrt(x(1)*x(1) + x(2)*x(2)))
+    lon = atan2(x(2), x(1))
+    if (lon < 0.0_dp) lon = lon + 2.0_dp*pi
+    if (lon >= 2.0_dp*pi) lon = 0.0_dp
+  end subroutine ll
 
   !> Attach a pyramid built by the caller (planet_intersect.dem.DEM.pyramid):
   !> meta(1:3, k) = rows, columns and 0-based offset of level k in data.
@@ -68,21 +87,24 @@ contains
     real(dp), intent(out) :: d_hit
     integer, intent(out) :: nodes, stat
     real(dp) :: stack(6, max_depth), a, b, mid, fm, fb, la_a, lo_a, la_b, lo_b
+    !> the precision of the returned entry (the leaves of the search are tol long)
+    real(dp) :: tol_hit
     integer :: top, cell_c, cell_i, box_c0, box_c1, box_i0, box_i1
     logical :: excluded, found, done, box_full, split_ok
 
     hit = .false.
     d_hit = 0.0_dp
+    tol_hit = 1.0e-3_dp*tol
     nodes = 0
     stat = stat_ok
     ! the stack holds segment ends with their latitude and longitude, so that each
     ! point along the ray is converted once, and where the next segment resumes
     ! (after a gap shorter than tol/4 at a block boundary; see split_at_boundary)
     a = d_start
-    call latlon_of(s + a*l, la_a, lo_a)
+    call ll(s + a*l, la_a, lo_a)
     top = 1
     stack(1, 1) = d_end
-    call latlon_of(s + d_end*l, stack(2, 1), stack(3, 1))
+    call ll(s + d_end*l, stack(2, 1), stack(3, 1))
     stack(4:6, 1) = stack(1:3, 1)
     do while (top > 0)
       b = stack(1, top)
@@ -132,7 +154,7 @@ contains
       if (.not. split_ok) then
         mid = 0.5_dp*(a + b)
         stack(1, top) = mid
-        call latlon_of(s + mid*l, stack(2, top), stack(3, top))
+        call ll(s + mid*l, stack(2, top), stack(3, top))
         stack(4:6, top) = stack(1:3, top)
       end if
     end do
@@ -225,7 +247,7 @@ contains
       entry_out(1) = -1.0_dp
       entry_out(4) = -1.0_dp
       dx = tol/512.0_dp
-      call latlon_of(s + x*l, la, lo)
+      call ll(s + x*l, la, lo)
       if (past(by_row, cb, ib, la, lo) .eqv. side_a) then
         entry_out(1:3) = [x, la, lo]
       else
@@ -235,12 +257,12 @@ contains
         if (entry_out(1) < 0.0_dp) then
           x = entry_out(4) - dx
           if (x <= a) return
-          call latlon_of(s + x*l, la, lo)
+          call ll(s + x*l, la, lo)
           if (past(by_row, cb, ib, la, lo) .eqv. side_a) entry_out(1:3) = [x, la, lo]
         else if (entry_out(4) < 0.0_dp) then
           x = entry_out(1) + dx
           if (x >= b) return
-          call latlon_of(s + x*l, la, lo)
+          call ll(s + x*l, la, lo)
           if (.not. (past(by_row, cb, ib, la, lo) .eqv. side_a)) entry_out(4:6) = [x, la, lo]
         else
           exit
@@ -323,11 +345,11 @@ contains
         ! height and its slope at x, within this cell's patch
         g = s + x*l
         gn = norm2(g)
-        call latlon_of(g, la, lo_)
-        ct = cos(la); st_ = sin(la); cp = cos(lo_); sp_ = sin(lo_)
+        call ll(g, la, lo_)
+        rh = sqrt(g(1)*g(1) + g(2)*g(2))               ! > 0: the poles are left to the subdivision
+        ct = rh/gn; st_ = g(3)/gn; cp = g(1)/rh; sp_ = g(2)/rh
         nh = [-st_*cp, -st_*sp_, ct]                   ! local north
         eh = [-sp_, cp, 0.0_dp]                        ! local east
-        rh = gn*ct
         fy = min(max((la*deg - lat0)/(lat1 - lat0), 0.0_dp), 1.0_dp)
         fxx = lon_diff(lon0*rad, lo_)*deg*dem%ppd
         if (fxx > 1.5_dp) fxx = 0.0_dp                 ! a hair west of the cell edge
@@ -347,16 +369,17 @@ contains
           done = .true.
           return
         end if
-        if (t <= tol) then
-          ! the surface is within tol: look just ahead for the entry
-          x2 = min(x + tol, b)
+        if (t <= tol_hit) then
+          ! the surface is within tol_hit: look just ahead for the entry
+          x2 = min(x + tol_hit, b)
           fx2 = height(x2)
           if (fx2 < 0.0_dp) then
-            lo2 = x; hi2 = x2
-            exit
+            d_hit = x2                                  ! below, within tol_hit of x (above)
+            found = .true.
+            return
           end if
           x_prev = x2
-          x = x2                                        ! a chord shorter than tol may be skipped
+          x = x2                                        ! a chord shorter than tol_hit may be skipped
           cycle
         end if
         x_prev = x
@@ -368,7 +391,7 @@ contains
     end subroutine cell_search
 
     !> Bisect [lo, hi], height(hi) < 0, to the entry: the returned point is below
-    !> the surface and within rounding of the last point found above it.
+    !> the surface and within tol_hit of the last point found at or above it.
     real(dp) function entry(lo_in, hi_in)
       real(dp), intent(in) :: lo_in, hi_in
       real(dp) :: lo, hi, m
@@ -382,7 +405,7 @@ contains
         else
           lo = m
         end if
-        if (hi - lo <= 1.0e-15_dp*max(1.0_dp, abs(hi))) exit
+        if (hi - lo <= tol_hit) exit
       end do
       entry = hi
     end function entry
@@ -401,7 +424,7 @@ contains
       real(dp) :: g(3), la, lo_, r
       integer :: st
       g = s + d*l
-      call latlon_of(g, la, lo_)
+      call ll(g, la, lo_)
       call dem_radius(dem, la, lo_, r, st)
       if (st /= stat_ok) stat = st
       height = norm2(g) - r
@@ -432,7 +455,7 @@ contains
         dstar = a + (ga(3)*dot_product(ga, l) - l(3)*dot_product(ga, ga))/den
         if (dstar > a .and. dstar < b) then
           gs = s + dstar*l
-          call latlon_of(gs, la_s, lo_s)
+          call ll(gs, la_s, lo_s)
           lat_lo = min(lat_lo, la_s)
           lat_hi = max(lat_hi, la_s)
         end if
