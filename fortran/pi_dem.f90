@@ -27,7 +27,7 @@ module pi_dem
   private
 
   public :: dem_t, dem_read_header, dem_open, dem_attach, dem_close, dem_radius, &
-            dem_polar_mean, dem_paths
+            dem_node, dem_polar_mean, dem_paths
 
   !> An open DEM (either storage mode).
   type :: dem_t
@@ -381,50 +381,73 @@ contains
       fy = min(max((lat_deg + 90.0_dp) * 2.0_dp * dem%ppd, 0.0_dp), 1.0_dp)
       r1 = dem%pole_south
       r2 = dem%pole_south
-      call get(i1, 1, r3)
-      call get(i2, 1, r4)
+      call node_value(dem, i1, 1, r3, stat)
+      call node_value(dem, i2, 1, r4, stat)
     else if (j1 >= dem%nlat) then
       ! north polar cap: row nlat, then the pole (r3 = r4 = mean of row nlat) at +90 deg
       fy = min(max((lat_deg - (90.0_dp - 0.5_dp/dem%ppd)) * 2.0_dp * dem%ppd, 0.0_dp), 1.0_dp)
-      call get(i1, dem%nlat, r1)
-      call get(i2, dem%nlat, r2)
+      call node_value(dem, i1, dem%nlat, r1, stat)
+      call node_value(dem, i2, dem%nlat, r2, stat)
       r3 = dem%pole_north
       r4 = dem%pole_north
     else
       fy = y - real(j1 - 1, dp)           ! m_pix * delta-theta of eq. 12
-      call get(i1, j1, r1)                ! eq. 2
-      call get(i2, j1, r2)                ! eq. 3
-      call get(i1, j1 + 1, r3)            ! eq. 4
-      call get(i2, j1 + 1, r4)            ! eq. 5
+      call node_value(dem, i1, j1, r1, stat)           ! eq. 2
+      call node_value(dem, i2, j1, r2, stat)           ! eq. 3
+      call node_value(dem, i1, j1 + 1, r3, stat)       ! eq. 4
+      call node_value(dem, i2, j1 + 1, r4, stat)       ! eq. 5
     end if
     ra = r1 + fx*(r2 - r1)                ! eq. 10
     rb = r3 + fx*(r4 - r3)                ! eq. 11
     r = ra + fy*(rb - ra)                 ! eq. 12
     if (stat /= stat_ok) r = 0.0_dp
-
-  contains
-
-    subroutine get(i, j, value)
-      integer, intent(in) :: i, j
-      real(dp), intent(out) :: value
-      real(dp) :: buf(1)
-      integer :: st
-      if (dem%read_mode == 0) then
-        value = dem%radii(i, j)
-      else if (associated(dem%map_sp)) then
-        value = real(dem%map_sp(i, j), dp)
-        if (.not. (value > 0.0_dp .and. value <= dem%rmax)) stat = stat_bad_radii
-      else if (associated(dem%map_dp)) then
-        value = dem%map_dp(i, j)
-        if (.not. (value > 0.0_dp .and. value <= dem%rmax)) stat = stat_bad_radii
-      else
-        call read_records(dem, int(j - 1, i8)*dem%nlon + i, 1, buf, st)   ! eq. 1
-        value = buf(1)
-        if (st /= stat_ok) stat = st
-      end if
-    end subroutine get
-
   end subroutine dem_radius
+
+  !> Radius of grid node (i, j): column i = 1..nlon (wrapping: 0 is nlon,
+  !> nlon + 1 is 1), row j = 1..nlat, with j = 0 and j = nlat + 1 the south and
+  !> north poles, which carry the mean radius of the adjacent row (section 2.2).
+  !> The corners r1..r4 of eqs. 2-5 are such nodes.
+  !>
+  !> stat: stat_ok; in read_mode 1 as dem_radius (r is then 0).
+  subroutine dem_node(dem, i, j, r, stat)
+    type(dem_t), intent(in) :: dem
+    integer, intent(in) :: i, j
+    real(dp), intent(out) :: r
+    integer, intent(out) :: stat
+    stat = stat_ok
+    if (j <= 0) then
+      r = dem%pole_south
+    else if (j > dem%nlat) then
+      r = dem%pole_north
+    else
+      call node_value(dem, modulo(i - 1, dem%nlon) + 1, j, r, stat)
+      if (stat /= stat_ok) r = 0.0_dp
+    end if
+  end subroutine dem_node
+
+  !> Record (i, j) of the grid (eq. 1) in either storage mode; stat is set only
+  !> when the record cannot be read or is invalid.
+  subroutine node_value(dem, i, j, value, stat)
+    type(dem_t), intent(in) :: dem
+    integer, intent(in) :: i, j
+    real(dp), intent(out) :: value
+    integer, intent(inout) :: stat
+    real(dp) :: buf(1)
+    integer :: st
+    if (dem%read_mode == 0) then
+      value = dem%radii(i, j)
+    else if (associated(dem%map_sp)) then
+      value = real(dem%map_sp(i, j), dp)
+      if (.not. (value > 0.0_dp .and. value <= dem%rmax)) stat = stat_bad_radii
+    else if (associated(dem%map_dp)) then
+      value = dem%map_dp(i, j)
+      if (.not. (value > 0.0_dp .and. value <= dem%rmax)) stat = stat_bad_radii
+    else
+      call read_records(dem, int(j - 1, i8)*dem%nlon + i, 1, buf, st)   ! eq. 1
+      value = buf(1)
+      if (st /= stat_ok) stat = st
+    end if
+  end subroutine node_value
 
   !> Read `n` consecutive records starting at record `first` (1-based, eq. 1)
   !> from the open `.dem` file, widen to real(dp) and check them.
