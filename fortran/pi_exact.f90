@@ -201,6 +201,7 @@ contains
       logical, intent(out) :: ok
       integer :: hr, hc, cb, ib, k
       real(dp) :: ga(3), phi, lam, sp2, cp2, qa, qb, qc, disc, q, t, t1, t2, nrm(3), dn, x, dx, la, lo, len
+      real(dp) :: x0, g0(3), rho2, dla, dlo, la0, lo0
       logical :: by_row, side_a
       ok = .false.
       hr = -1
@@ -262,11 +263,22 @@ contains
       end if
       if (.not. (t > 0.0_dp .and. t < len)) return
       x = a + t
-      ! step out from x until the two points fall on either side
+      ! step out from x until the two points fall on either side; within a few
+      ! tol/512 of x, latitude and longitude are linear in the distance to far
+      ! below rounding (the steps are ~1e-12 of the radius), so the points beside
+      ! x take them from x's values and their derivatives along the ray
       entry_out(1) = -1.0_dp
       entry_out(4) = -1.0_dp
       dx = tol/512.0_dp
-      call ll(s + x*l, la, lo)
+      x0 = x
+      g0 = s + x0*l
+      rho2 = g0(1)*g0(1) + g0(2)*g0(2)
+      if (rho2 <= 0.0_dp) return                      ! on the axis: split at the middle
+      dla = (l(3)*rho2 - g0(3)*(g0(1)*l(1) + g0(2)*l(2)))/(sqrt(rho2)*(rho2 + g0(3)*g0(3)))
+      dlo = (g0(1)*l(2) - g0(2)*l(1))/rho2
+      call ll(g0, la0, lo0)
+      la = la0
+      lo = lo0
       if (past(by_row, cb, ib, la, lo) .eqv. side_a) then
         entry_out(1:3) = [x, la, lo]
       else
@@ -276,12 +288,14 @@ contains
         if (entry_out(1) < 0.0_dp) then
           x = entry_out(4) - dx
           if (x <= a) return
-          call ll(s + x*l, la, lo)
+          la = la0 + (x - x0)*dla
+          lo = modulo(lo0 + (x - x0)*dlo, 2.0_dp*pi)
           if (past(by_row, cb, ib, la, lo) .eqv. side_a) entry_out(1:3) = [x, la, lo]
         else if (entry_out(4) < 0.0_dp) then
           x = entry_out(1) + dx
           if (x >= b) return
-          call ll(s + x*l, la, lo)
+          la = la0 + (x - x0)*dla
+          lo = modulo(lo0 + (x - x0)*dlo, 2.0_dp*pi)
           if (.not. (past(by_row, cb, ib, la, lo) .eqv. side_a)) entry_out(4:6) = [x, la, lo]
         else
           exit
