@@ -26,7 +26,7 @@ module pi_dem
   implicit none
   private
 
-  public :: dem_t, dem_read_header, dem_open, dem_attach, dem_close, dem_radius, &
+  public :: dem_t, dem_read_header, dem_open, dem_attach, dem_attach_map, dem_close, dem_radius, &
             dem_node, dem_polar_mean, dem_paths
 
   !> An open DEM (either storage mode).
@@ -317,6 +317,71 @@ contains
     dem%pole_south = dem_polar_mean(radii(:, 1))
     dem%pole_north = dem_polar_mean(radii(:, dem%nlat))
   end subroutine dem_attach
+
+  !> Attach a caller's read-only memory map of a `.dem` file (native byte order)
+  !> as a read_mode-1 DEM, without copying: records are read from the map and
+  !> checked as they are read, exactly as dem_open(..., use_map=.true.) does,
+  !> but the map is the caller's and stays open between calls, so pages the
+  !> kernel has brought in are not faulted in again.
+  !>
+  !> map: address of nlon*nlat records of itemsize 4 (real32) or 8 (real64),
+  !> which must stay mapped while `dem` is used.
+  !>
+  !> stat: as dem_attach, stat_bad_mode for another itemsize, stat_bad_radii
+  !> when a polar row holds an invalid radius.
+  subroutine dem_attach_map(map, itemsize, ppd, rmax, f, re, dem, stat)
+    type(c_ptr), intent(in) :: map
+    integer, intent(in) :: itemsize, ppd
+    real(dp), intent(in) :: rmax, f, re
+    type(dem_t), intent(out) :: dem
+    integer, intent(out) :: stat
+    real(dp), allocatable :: row(:)
+    integer :: j, k
+    stat = stat_ok
+    if (ppd < 1) then
+      stat = stat_bad_ppd
+    else if (.not. ieee_is_finite(rmax) .or. rmax <= 0.0_dp) then
+      stat = stat_bad_rmax
+    else if (.not. ieee_is_finite(f) .or. f < 0.0_dp .or. f >= 1.0_dp) then
+      stat = stat_bad_f
+    else if (.not. ieee_is_finite(re) .or. re <= 0.0_dp) then
+      stat = stat_bad_re
+    else if (itemsize /= 4 .and. itemsize /= 8) then
+      stat = stat_bad_mode
+    end if
+    if (stat /= stat_ok) return
+    dem%ppd = ppd
+    dem%nlon = 360*ppd
+    dem%nlat = 180*ppd
+    dem%rmax = rmax
+    dem%f = f
+    dem%re = re
+    dem%read_mode = 1
+    dem%itemsize = itemsize
+    if (itemsize == 4) then
+      call c_f_pointer(map, dem%map_sp, [dem%nlon, dem%nlat])
+    else
+      call c_f_pointer(map, dem%map_dp, [dem%nlon, dem%nlat])
+    end if
+    allocate(row(dem%nlon))
+    do k = 1, 2
+      j = merge(1, dem%nlat, k == 1)
+      if (itemsize == 4) then
+        row = real(dem%map_sp(:, j), dp)
+      else
+        row = dem%map_dp(:, j)
+      end if
+      if (.not. all(row > 0.0_dp .and. row <= rmax)) then
+        stat = stat_bad_radii
+        return
+      end if
+      if (k == 1) then
+        dem%pole_south = dem_polar_mean(row)
+      else
+        dem%pole_north = dem_polar_mean(row)
+      end if
+    end do
+  end subroutine dem_attach_map
 
   !> Release a DEM: close its file, free a grid it owns.
   subroutine dem_close(dem)

@@ -68,6 +68,42 @@ subroutine core_intersect_file(path, read_mode, n, s, l, step_mode, tangent_mode
 end subroutine core_intersect_file
 
 !> DEM radius (eqs. 2-12) at n points (radians) of a grid held in memory.
+!> As core_intersect_file with use_map, on the caller's own read-only memory map
+!> of the `.dem` file (native byte order), passed as its bytes: the map outlives
+!> the call, so the pages it has brought in are not faulted in again.
+subroutine core_intersect_mapped(nbytes, bytes, itemsize, ppd, rmax, f, re, n, s, l, step_mode, &
+                                 tangent_mode, threads, method, npyr, pyr_data, nlev, pyr_meta, &
+                                 p, t, tc, sc, scal, status, nsteps, stat)
+  use, intrinsic :: iso_c_binding, only: c_loc, c_int8_t
+  use pi_kinds, only: dp, i8
+  use pi_dem, only: dem_t, dem_attach_map
+  use pi_status, only: stat_ok, stat_dem_size
+  use pi_intersect, only: intersect_packed
+  use pi_exact, only: pyramid_t, pyramid_attach
+  implicit none
+  integer(i8), intent(in) :: nbytes
+  integer(c_int8_t), intent(in), target :: bytes(nbytes)
+  integer, intent(in) :: itemsize, ppd, n, step_mode, tangent_mode, threads, method, npyr, nlev
+  real(dp), intent(in), target :: pyr_data(npyr)
+  integer, intent(in) :: pyr_meta(3, nlev)
+  real(dp), intent(in) :: rmax, f, re, s(3, n), l(3, n)
+  real(dp), intent(out) :: p(3, n), t(3, n), tc(3, n), sc(3, n), scal(9, n)
+  integer, intent(out) :: status(n), nsteps(n), stat
+  type(dem_t) :: dem
+  type(pyramid_t) :: pyr
+  p = 0.0_dp; t = 0.0_dp; tc = 0.0_dp; sc = 0.0_dp; scal = 0.0_dp
+  status = -1; nsteps = 0
+  if (ppd < 1 .or. nbytes /= 64800_i8*ppd*ppd*itemsize) then
+    stat = stat_dem_size
+    return
+  end if
+  call pyramid_attach(pyr_data, pyr_meta, pyr)
+  call dem_attach_map(c_loc(bytes), itemsize, ppd, rmax, f, re, dem, stat)
+  if (stat /= stat_ok) return
+  call intersect_packed(dem, n, s, l, step_mode, tangent_mode, p, t, tc, sc, scal, status, nsteps, stat, &
+                        threads, method, pyr)
+end subroutine core_intersect_mapped
+
 subroutine core_radius_grid(nlon, nlat, radii, ppd, rmax, n, lat, lon, r, stat)
   use pi_kinds, only: dp
   use pi_dem, only: dem_t, dem_attach, dem_radius

@@ -224,6 +224,17 @@ class DEM:
             return out.reshape(j1 - j0, self.nlon).astype(np.float64)
         return np.asarray(self.radii[j0:j1], dtype=np.float64)
 
+    def mapped_bytes(self) -> np.ndarray | None:
+        """The bytes of this DEM's read-only memory map of its ``.dem`` file, as a
+        flat int8 view (no copy), for the Fortran core to read records from in
+        dem_read_mode 1; None when the DEM is in memory or its byte order is not
+        the machine's (the core then maps the file itself for each call)."""
+        if not isinstance(self.radii, np.memmap) or not self.radii.dtype.isnative:
+            return None
+        if not self.radii.flags.c_contiguous:
+            return None
+        return self.radii.reshape(-1).view(np.int8)
+
     def radii64(self) -> np.ndarray:
         """The grid as a C-ordered float64 array (converted once and kept)."""
         if self._radii64 is None:

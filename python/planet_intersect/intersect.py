@@ -145,7 +145,9 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
         How dem_read_mode=1 reads the file: "records", one pread per record (the
         paper's direct access; resident memory stays small whatever the DEM size);
         "mmap", from a read-only memory map (faster; the kernel pages in what the
-        rays touch). Bit-identical results.
+        rays touch): the DEM's own map, kept open between calls, when the file is
+        float32 or float64 in the machine's byte order, else one made for the
+        call. Bit-identical results.
 
     Returns
     -------
@@ -193,8 +195,14 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
         if dem.path is None:
             raise ValueError("dem_read_mode=1 reads records from the DEM's file: "
                              "this DEM is in memory (write it with dem.write() and DEM.read() it)")
-        out = _core.core_intersect_file(str(dem.path), 1, s.T, l.T, step_mode, _TANGENT[tangent], pyr_data,
-                                        pyr_meta.T, use_map=int(io == "mmap"), **extra)
+        mapped = dem.mapped_bytes() if io == "mmap" else None
+        if mapped is not None:
+            # the DEM's own memory map, open between calls: pages already brought in stay mapped
+            out = _core.core_intersect_mapped(mapped, dem.radii.dtype.itemsize, dem.ppd, dem.rmax, dem.f, dem.re,
+                                              s.T, l.T, step_mode, _TANGENT[tangent], pyr_data, pyr_meta.T, **extra)
+        else:
+            out = _core.core_intersect_file(str(dem.path), 1, s.T, l.T, step_mode, _TANGENT[tangent], pyr_data,
+                                            pyr_meta.T, use_map=int(io == "mmap"), **extra)
         where = f"intersect (dem_read_mode=1, {dem.path})"
     p, t, tc, sc, scal, status, nsteps, stat = out
     raise_for_stat(stat, where)
