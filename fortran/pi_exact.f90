@@ -26,7 +26,7 @@
 module pi_exact
   use pi_kinds, only: dp, i8
   use pi_status
-  use pi_vector, only: rad, deg, lon_diff, pi
+  use pi_vector, only: rad, deg, pi
   use pi_dem, only: dem_t, dem_radius, dem_node
   implicit none
   private
@@ -78,6 +78,24 @@ contains
     if (lon < 0.0_dp) lon = lon + 2.0_dp*pi
     if (lon >= 2.0_dp*pi) lon = 0.0_dp
   end subroutine ll
+
+  !> East longitude difference lon - lon0 wrapped into [0, 2 pi), for angles
+  !> within 2 pi of each other (the exact search's longitudes lie in [0, 2 pi)):
+  !> pi_vector's lon_diff without the fmod call.
+  pure real(dp) function east_of(lon0, lon) result(delta)
+    real(dp), intent(in) :: lon0, lon
+    delta = lon - lon0
+    if (delta < 0.0_dp) delta = delta + 2.0_dp*pi
+    if (delta >= 2.0_dp*pi) delta = delta - 2.0_dp*pi
+    if (delta < 0.0_dp) delta = 0.0_dp              ! a tiny negative plus 2 pi rounded to 2 pi
+  end function east_of
+
+  !> |x|, as sqrt of the sum of squares: gfortran's norm2 scales each term to
+  !> guard against overflow (three divisions), which planetary radii never need.
+  pure real(dp) function length(x)
+    real(dp), intent(in) :: x(3)
+    length = sqrt(x(1)*x(1) + x(2)*x(2) + x(3)*x(3))
+  end function length
 
   !> Attach a pyramid built by the caller (planet_intersect.dem.DEM.pyramid):
   !> meta(1:3, k) = rows, columns and 0-based offset of level k in data.
@@ -289,13 +307,13 @@ contains
           x = entry_out(4) - dx
           if (x <= a) return
           la = la0 + (x - x0)*dla
-          lo = modulo(lo0 + (x - x0)*dlo, 2.0_dp*pi)
+          lo = east_of(0.0_dp, lo0 + (x - x0)*dlo)
           if (past(by_row, cb, ib, la, lo) .eqv. side_a) entry_out(1:3) = [x, la, lo]
         else if (entry_out(4) < 0.0_dp) then
           x = entry_out(1) + dx
           if (x >= b) return
           la = la0 + (x - x0)*dla
-          lo = modulo(lo0 + (x - x0)*dlo, 2.0_dp*pi)
+          lo = east_of(0.0_dp, lo0 + (x - x0)*dlo)
           if (.not. (past(by_row, cb, ib, la, lo) .eqv. side_a)) entry_out(4:6) = [x, la, lo]
         else
           exit
@@ -324,7 +342,7 @@ contains
       real(dp), intent(in) :: lon
       integer, intent(in) :: ib
       integer :: u
-      u = min(int(lon_diff(rad*0.5_dp/dem%ppd, lon)*deg*dem%ppd), dem%nlon - 1)
+      u = min(int(east_of(rad*0.5_dp/dem%ppd, lon)*deg*dem%ppd), dem%nlon - 1)
       if (u < box_i0) u = u + dem%nlon
       col_past = u >= ib
     end function col_past
@@ -368,7 +386,7 @@ contains
       rt = max(abs(r3 - r1), abs(r4 - r2))*ky
       rp = max(abs(r2 - r1), abs(r4 - r3))*kx
       rtp = abs(r1 - r2 - r3 + r4)*ky*kx
-      rlo = norm2(s + min(max(-dot_product(s, l), a), b)*l)
+      rlo = length(s + min(max(-dot_product(s, l), a), b)*l)
       th1 = max(abs(lat0), abs(lat1))*rad
       clo = cos(th1)
       if (clo <= 1.0e-9_dp) return                     ! at a pole: leave it to the subdivision
@@ -380,14 +398,14 @@ contains
       do j = 1, 200
         ! height and its slope at x, within this cell's patch
         g = s + x*l
-        gn = norm2(g)
+        gn = length(g)
         call ll(g, la, lo_)
         rh = sqrt(g(1)*g(1) + g(2)*g(2))               ! > 0: the poles are left to the subdivision
         ct = rh/gn; st_ = g(3)/gn; cp = g(1)/rh; sp_ = g(2)/rh
         nh = [-st_*cp, -st_*sp_, ct]                   ! local north
         eh = [-sp_, cp, 0.0_dp]                        ! local east
         fy = min(max((la*deg - lat0)/(lat1 - lat0), 0.0_dp), 1.0_dp)
-        fxx = lon_diff(lon0*rad, lo_)*deg*dem%ppd
+        fxx = east_of(lon0*rad, lo_)*deg*dem%ppd
         if (fxx > 1.5_dp) fxx = 0.0_dp                 ! a hair west of the cell edge
         fxx = min(max(fxx, 0.0_dp), 1.0_dp)
         f = gn - (((r1 + fxx*(r2 - r1)) + fy*((r3 + fxx*(r4 - r3)) - (r1 + fxx*(r2 - r1)))))
@@ -463,7 +481,7 @@ contains
       call ll(g, la, lo_)
       call dem_radius(dem, la, lo_, r, st)
       if (st /= stat_ok) stat = st
-      height = norm2(g) - r
+      height = length(g) - r
     end function height
 
     !> excluded = the segment [a, b] provably stays at or above the surface.
@@ -476,7 +494,7 @@ contains
       logical :: full_lon
       ! smallest distance of the segment from the centre
       dc = min(max(-dot_product(s, l), a), b)
-      rmin = norm2(s + dc*l)
+      rmin = length(s + dc*l)
       if (rmin >= dem%rmax) then
         excluded = .true.
         return
@@ -529,7 +547,7 @@ contains
         i0 = 0
         i1 = dem%nlon - 1
       else
-        x0 = lon_diff(rad*0.5_dp/dem%ppd, lon0)*deg*dem%ppd
+        x0 = east_of(rad*0.5_dp/dem%ppd, lon0)*deg*dem%ppd
         x1 = x0 + span*deg*dem%ppd
         i0 = min(int(x0), dem%nlon - 1)
         i1 = int(x1)                         ! may exceed nlon - 1: wraps below
