@@ -83,6 +83,19 @@ def test_mmap_path_bit_identical(tmp_path, rough, dtype, byteorder, method):
         assert np.array_equal(getattr(a, name), getattr(c, name), equal_nan=True), name
 
 
+def test_mmap_reads_the_dems_own_map(tmp_path, rough):
+    """io="mmap" attaches the memory map DEM.read already holds (no copy, kept
+    between calls) when the file is in the machine's byte order; otherwise the
+    core maps the file for the call (covered by the bit-identity test above)."""
+    native = "little" if np.little_endian else "big"
+    other = "big" if np.little_endian else "little"
+    mine = pi.DEM.read(rough.write(tmp_path / "n", dtype="float32", byteorder=native))
+    b = mine.mapped_bytes()
+    assert b is not None and b.nbytes == mine.nlat * mine.nlon * 4 and np.shares_memory(b, mine.radii)
+    assert pi.DEM.read(rough.write(tmp_path / "o", dtype="float32", byteorder=other)).mapped_bytes() is None
+    assert rough.mapped_bytes() is None                      # in memory: nothing to map
+
+
 def test_bad_io(rough_file):
     with pytest.raises(ValueError, match="io must be 'records' or 'mmap'"):
         pi.intersect(rough_file, [5000.0, 0, 0], [-1.0, 0, 0], dem_read_mode=1, io="cache")
