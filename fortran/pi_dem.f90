@@ -181,14 +181,8 @@ contains
     if (stat /= stat_ok) return
     if (nval < 4) then
       stat = stat_hdr_value
-    else if (ppd < 1) then
-      stat = stat_bad_ppd
-    else if (.not. ieee_is_finite(rmax) .or. rmax <= 0.0_dp) then
-      stat = stat_bad_rmax
-    else if (.not. ieee_is_finite(f) .or. f < 0.0_dp .or. f >= 1.0_dp) then
-      stat = stat_bad_f
-    else if (.not. ieee_is_finite(re) .or. re <= 0.0_dp) then
-      stat = stat_bad_re
+    else
+      stat = header_stat(ppd, rmax, f, re)
     end if
     swap = big .neqv. native_big_endian()
   end subroutine dem_read_header
@@ -292,25 +286,9 @@ contains
     real(dp), intent(in) :: rmax, f, re
     type(dem_t), intent(out) :: dem
     integer, intent(out) :: stat
-    stat = stat_ok
-    if (ppd < 1) then
-      stat = stat_bad_ppd
-    else if (size(radii, 1) /= 360*ppd .or. size(radii, 2) /= 180*ppd) then
-      stat = stat_bad_shape
-    else if (.not. ieee_is_finite(rmax) .or. rmax <= 0.0_dp) then
-      stat = stat_bad_rmax
-    else if (.not. ieee_is_finite(f) .or. f < 0.0_dp .or. f >= 1.0_dp) then
-      stat = stat_bad_f
-    else if (.not. ieee_is_finite(re) .or. re <= 0.0_dp) then
-      stat = stat_bad_re
-    end if
+    call set_grid(ppd, rmax, f, re, dem, stat)
+    if (stat == stat_ok .and. (size(radii, 1) /= dem%nlon .or. size(radii, 2) /= dem%nlat)) stat = stat_bad_shape
     if (stat /= stat_ok) return
-    dem%ppd = ppd
-    dem%nlon = 360*ppd
-    dem%nlat = 180*ppd
-    dem%rmax = rmax
-    dem%f = f
-    dem%re = re
     dem%read_mode = 0
     dem%radii => radii
     dem%owns_radii = .false.
@@ -337,25 +315,9 @@ contains
     integer, intent(out) :: stat
     real(dp), allocatable :: row(:)
     integer :: j, k
-    stat = stat_ok
-    if (ppd < 1) then
-      stat = stat_bad_ppd
-    else if (.not. ieee_is_finite(rmax) .or. rmax <= 0.0_dp) then
-      stat = stat_bad_rmax
-    else if (.not. ieee_is_finite(f) .or. f < 0.0_dp .or. f >= 1.0_dp) then
-      stat = stat_bad_f
-    else if (.not. ieee_is_finite(re) .or. re <= 0.0_dp) then
-      stat = stat_bad_re
-    else if (itemsize /= 4 .and. itemsize /= 8) then
-      stat = stat_bad_mode
-    end if
+    call set_grid(ppd, rmax, f, re, dem, stat)
+    if (stat == stat_ok .and. itemsize /= 4 .and. itemsize /= 8) stat = stat_bad_mode
     if (stat /= stat_ok) return
-    dem%ppd = ppd
-    dem%nlon = 360*ppd
-    dem%nlat = 180*ppd
-    dem%rmax = rmax
-    dem%f = f
-    dem%re = re
     dem%read_mode = 1
     dem%itemsize = itemsize
     if (itemsize == 4) then
@@ -382,6 +344,41 @@ contains
       end if
     end do
   end subroutine dem_attach_map
+
+  !> The status of a grid's header values (Table 1): stat_ok when ppd >= 1,
+  !> rmax is finite and > 0, 0 <= f < 1 and re is finite and > 0; else the first
+  !> failing one's code (stat_bad_ppd, stat_bad_rmax, stat_bad_f, stat_bad_re).
+  pure integer function header_stat(ppd, rmax, f, re) result(stat)
+    integer, intent(in) :: ppd
+    real(dp), intent(in) :: rmax, f, re
+    stat = stat_ok
+    if (ppd < 1) then
+      stat = stat_bad_ppd
+    else if (.not. ieee_is_finite(rmax) .or. rmax <= 0.0_dp) then
+      stat = stat_bad_rmax
+    else if (.not. ieee_is_finite(f) .or. f < 0.0_dp .or. f >= 1.0_dp) then
+      stat = stat_bad_f
+    else if (.not. ieee_is_finite(re) .or. re <= 0.0_dp) then
+      stat = stat_bad_re
+    end if
+  end function header_stat
+
+  !> Check the header values of a grid that a caller hands over (header_stat)
+  !> and set them and the grid's size in dem.
+  subroutine set_grid(ppd, rmax, f, re, dem, stat)
+    integer, intent(in) :: ppd
+    real(dp), intent(in) :: rmax, f, re
+    type(dem_t), intent(inout) :: dem
+    integer, intent(out) :: stat
+    stat = header_stat(ppd, rmax, f, re)
+    if (stat /= stat_ok) return
+    dem%ppd = ppd
+    dem%nlon = 360*ppd
+    dem%nlat = 180*ppd
+    dem%rmax = rmax
+    dem%f = f
+    dem%re = re
+  end subroutine set_grid
 
   !> Release a DEM: close its file, free a grid it owns.
   subroutine dem_close(dem)
