@@ -24,7 +24,7 @@
 !> within tol/1000 of a point found at or above it. No hit is reported where
 !> |g| >= r.
 module pi_exact
-  use pi_kinds, only: dp, i8
+  use pi_kinds, only: dp, sp, i8
   use pi_status
   use pi_vector, only: rad, deg, pi
   use pi_dem, only: dem_t, dem_radius, dem_node
@@ -40,7 +40,7 @@ module pi_exact
     integer :: nlev = 0
     integer :: rows(40) = 0, cols(40) = 0
     integer(i8) :: off(40) = 0
-    real(dp), pointer, contiguous :: data(:) => null()
+    real(sp), pointer, contiguous :: data(:) => null()
   end type pyramid_t
 
   !> Stack depth of the subdivision (segments halve each level).
@@ -101,7 +101,7 @@ contains
   !> meta(1:3, k) = rows, columns and 0-based offset of level k in data.
   !> The arrays must outlive the pyramid_t.
   subroutine pyramid_attach(data, meta, pyr)
-    real(dp), intent(in), target, contiguous :: data(:)
+    real(sp), intent(in), target, contiguous :: data(:)
     integer, intent(in) :: meta(:, :)
     type(pyramid_t), intent(out) :: pyr
     integer :: k
@@ -605,7 +605,7 @@ contains
         end if
         do bc = bc0, bc1
           do bi = bi0, min(bi1, pyr%cols(k) - 1)
-            m = max(m, pyr%data(pyr%off(k) + int(bc, i8)*pyr%cols(k) + bi + 1))
+            m = max(m, real(pyr%data(pyr%off(k) + int(bc, i8)*pyr%cols(k) + bi + 1), dp))
           end do
         end do
       end do

@@ -11,14 +11,14 @@
 subroutine core_intersect_grid(nlon, nlat, radii, ppd, rmax, f, re, n, s, l, step_mode, &
                                tangent_mode, threads, method, npyr, pyr_data, nlev, pyr_meta, &
                                p, t, tc, sc, scal, status, nsteps, stat)
-  use pi_kinds, only: dp
+  use pi_kinds, only: dp, sp
   use pi_dem, only: dem_t, dem_attach
   use pi_status, only: stat_ok
   use pi_intersect, only: intersect_packed
   use pi_exact, only: pyramid_t, pyramid_attach
   implicit none
   integer, intent(in) :: nlon, nlat, ppd, n, step_mode, tangent_mode, threads, method, npyr, nlev
-  real(dp), intent(in), target :: pyr_data(npyr)
+  real(sp), intent(in), target :: pyr_data(npyr)
   integer, intent(in) :: pyr_meta(3, nlev)
   real(dp), intent(in), target :: radii(nlon, nlat)
   real(dp), intent(in) :: rmax, f, re, s(3, n), l(3, n)
@@ -42,7 +42,7 @@ end subroutine core_intersect_grid
 subroutine core_intersect_file(path, read_mode, n, s, l, step_mode, tangent_mode, threads, &
                                method, use_map, npyr, pyr_data, nlev, pyr_meta, &
                                p, t, tc, sc, scal, status, nsteps, stat)
-  use pi_kinds, only: dp
+  use pi_kinds, only: dp, sp
   use pi_dem, only: dem_t, dem_open, dem_close
   use pi_status, only: stat_ok
   use pi_intersect, only: intersect_packed
@@ -50,7 +50,7 @@ subroutine core_intersect_file(path, read_mode, n, s, l, step_mode, tangent_mode
   implicit none
   character(len=*), intent(in) :: path
   integer, intent(in) :: read_mode, n, step_mode, tangent_mode, threads, method, use_map, npyr, nlev
-  real(dp), intent(in), target :: pyr_data(npyr)
+  real(sp), intent(in), target :: pyr_data(npyr)
   integer, intent(in) :: pyr_meta(3, nlev)
   real(dp), intent(in) :: s(3, n), l(3, n)
   real(dp), intent(out) :: p(3, n), t(3, n), tc(3, n), sc(3, n), scal(9, n)
@@ -75,7 +75,7 @@ subroutine core_intersect_mapped(nbytes, bytes, itemsize, ppd, rmax, f, re, n, s
                                  tangent_mode, threads, method, npyr, pyr_data, nlev, pyr_meta, &
                                  p, t, tc, sc, scal, status, nsteps, stat)
   use, intrinsic :: iso_c_binding, only: c_loc, c_int8_t
-  use pi_kinds, only: dp, i8
+  use pi_kinds, only: dp, sp, i8
   use pi_dem, only: dem_t, dem_attach_map
   use pi_status, only: stat_ok, stat_dem_size
   use pi_intersect, only: intersect_packed
@@ -84,7 +84,7 @@ subroutine core_intersect_mapped(nbytes, bytes, itemsize, ppd, rmax, f, re, n, s
   integer(i8), intent(in) :: nbytes
   integer(c_int8_t), intent(in), target :: bytes(nbytes)
   integer, intent(in) :: itemsize, ppd, n, step_mode, tangent_mode, threads, method, npyr, nlev
-  real(dp), intent(in), target :: pyr_data(npyr)
+  real(sp), intent(in), target :: pyr_data(npyr)
   integer, intent(in) :: pyr_meta(3, nlev)
   real(dp), intent(in) :: rmax, f, re, s(3, n), l(3, n)
   real(dp), intent(out) :: p(3, n), t(3, n), tc(3, n), sc(3, n), scal(9, n)

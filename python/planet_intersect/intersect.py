@@ -18,7 +18,7 @@ __all__ = ["intersect", "IntersectResult"]
 
 _TANGENT = {"paper": 0, "exact": 1}
 _METHOD = {"stepping": 0, "exact": 1}
-_NO_PYRAMID = (np.zeros(1), np.zeros((1, 3), dtype=np.int32))
+_NO_PYRAMID = (np.zeros(1, dtype=np.float32), np.zeros((1, 3), dtype=np.int32))
 
 
 @dataclass
