@@ -5,7 +5,8 @@
 !> never exceeds the largest of its four corner radii, and over a sub-box of the
 !> cell its maximum is the largest of the surface values at the sub-box corners.
 !> The pyramid holds, for blocks of 2^k x 2^k cells (k >= 1), the largest node
-!> radius bordering the block. A ray segment [a, b] cannot enter the surface if
+!> radius bordering the block (as float32, rounded up and one ulp more, so it is
+!> never below the float64 value). A ray segment [a, b] cannot enter the surface if
 !> its smallest distance from the centre is at or above the highest surface
 !> radius over the latitude/longitude box the segment can touch; otherwise it is
 !> split where it crosses the coarsest block boundary inside its box (a
