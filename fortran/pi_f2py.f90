@@ -67,7 +67,6 @@ subroutine core_intersect_file(path, read_mode, n, s, l, step_mode, tangent_mode
   call dem_close(dem)
 end subroutine core_intersect_file
 
-!> DEM radius (eqs. 2-12) at n points (radians) of a grid held in memory.
 !> As core_intersect_file with use_map, on the caller's own read-only memory map
 !> of the `.dem` file (native byte order), passed as its bytes: the map outlives
 !> the call, so the pages it has brought in are not faulted in again.
@@ -104,6 +103,7 @@ subroutine core_intersect_mapped(nbytes, bytes, itemsize, ppd, rmax, f, re, n, s
                         threads, method, pyr)
 end subroutine core_intersect_mapped
 
+!> DEM radius (eqs. 2-12) at n points (radians) of a grid held in memory.
 subroutine core_radius_grid(nlon, nlat, radii, ppd, rmax, n, lat, lon, r, stat)
   use pi_kinds, only: dp
   use pi_dem, only: dem_t, dem_attach, dem_radius
