@@ -313,8 +313,6 @@ contains
     real(dp), intent(in) :: rmax, f, re
     type(dem_t), intent(out) :: dem
     integer, intent(out) :: stat
-    real(dp), allocatable :: row(:)
-    integer :: j, k
     call set_grid(ppd, rmax, f, re, dem, stat)
     if (stat == stat_ok .and. itemsize /= 4 .and. itemsize /= 8) stat = stat_bad_mode
     if (stat /= stat_ok) return
@@ -325,25 +323,26 @@ contains
     else
       call c_f_pointer(map, dem%map_dp, [dem%nlon, dem%nlat])
     end if
-    allocate(row(dem%nlon))
-    do k = 1, 2
-      j = merge(1, dem%nlat, k == 1)
-      if (itemsize == 4) then
-        row = real(dem%map_sp(:, j), dp)
-      else
-        row = dem%map_dp(:, j)
-      end if
-      if (.not. all(row > 0.0_dp .and. row <= rmax)) then
-        stat = stat_bad_radii
-        return
-      end if
-      if (k == 1) then
-        dem%pole_south = dem_polar_mean(row)
-      else
-        dem%pole_north = dem_polar_mean(row)
-      end if
-    end do
+    call row_mean(dem, 1, dem%pole_south, stat)
+    if (stat == stat_ok) call row_mean(dem, dem%nlat, dem%pole_north, stat)
   end subroutine dem_attach_map
+
+  !> Mean radius of row j (dem_polar_mean), its records read and checked by
+  !> node_value in whichever storage the DEM has.
+  subroutine row_mean(dem, j, r, stat)
+    type(dem_t), intent(in) :: dem
+    integer, intent(in) :: j
+    real(dp), intent(out) :: r
+    integer, intent(out) :: stat
+    real(dp), allocatable :: row(:)
+    integer :: i
+    stat = stat_ok
+    allocate(row(dem%nlon))                           ! 46,080 values at 128 ppd: not on the stack
+    do i = 1, dem%nlon
+      call node_value(dem, i, j, row(i), stat)
+    end do
+    r = dem_polar_mean(row)
+  end subroutine row_mean
 
   !> The status of a grid's header values (Table 1): stat_ok when ppd >= 1,
   !> rmax is finite and > 0, 0 <= f < 1 and re is finite and > 0; else the first
