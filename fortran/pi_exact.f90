@@ -128,6 +128,10 @@ contains
     !> the precision of the returned entry (the leaves of the search are tol long)
     real(dp) :: tol_hit
     integer :: top, cell_c, cell_i, box_c0, box_c1, box_i0, box_i1
+    !> the cell of the last one-cell box (load_cell): its node radii (eqs. 2-5;
+    !> r1, r2 south, r3, r4 north), latitude band (degrees), first longitude
+    !> (radians) and d(fraction)/d(angle) in latitude and longitude (per radian)
+    real(dp) :: r1, r2, r3, r4, lat0, lat1, lon0, ky, kx
     logical :: excluded, found, done, box_full, split_ok
 
     hit = .false.
@@ -158,7 +162,7 @@ contains
       if (cell_c >= 0) then
         ! inside one cell: certified steps (a lower bound of the height from its
         ! value, slope and a bound on its curvature) either reach b or the entry
-        call cell_search(a, b, cell_c, cell_i, found, done)
+        call cell_search(a, b, found, done)
         if (stat /= stat_ok) return
         if (found) then
           hit = .true.
@@ -349,7 +353,7 @@ contains
     end function col_past
 
     !> First entry of the ray into the surface over [a, b], which lies in cell
-    !> (c, i). With K >= |f''| on the cell (f = |g| - R along the ray):
+    !> load_cell's cell. With K >= |f''| on the cell (f = |g| - R along the ray):
     !>   f(x + t) >= f(x) + f'(x) t - K t^2 / 2,
     !> so no root lies before the positive root t* of the right-hand side; the
     !> search moves x by t* (a Newton step from the safe side) until x passes b
@@ -361,29 +365,14 @@ contains
     !> |f''| <= 1/r + 2|R_tp|/(r rho) + |R_t| (2 + |tan theta|)/r^2 + 2|R_p|/rho^2.
     !> If the steps stall (more than 200), done = .false. hands [a, b] back to
     !> the subdivision.
-    subroutine cell_search(a, b, c, i, found, done)
+    subroutine cell_search(a, b, found, done)
       real(dp), intent(in) :: a, b
-      integer, intent(in) :: c, i
       logical, intent(out) :: found, done
-      real(dp) :: lat0, lat1, lon0, r1, r2, r3, r4, ky, kx, rt, rp, rtp, rlo, clo, tlo, k, x, f, fp
+      real(dp) :: rt, rp, rtp, rlo, clo, tlo, k, x, f, fp
       real(dp) :: g(3), gn, la, lo_, ct, st_, cp, sp_, nh(3), eh(3), rh, th1, fy, fxx, t, lo2, hi2, fx2, x2, x_prev
       integer :: j
       found = .false.
       done = .false.
-      ! the cell's latitude band and node radii (r1, r2 south; r3, r4 north)
-      if (c == 0) then
-        lat0 = -90.0_dp; lat1 = -90.0_dp + 0.5_dp/dem%ppd; ky = 2.0_dp*dem%ppd*deg
-      else if (c == dem%nlat) then
-        lat0 = 90.0_dp - 0.5_dp/dem%ppd; lat1 = 90.0_dp; ky = 2.0_dp*dem%ppd*deg
-      else
-        lat0 = -90.0_dp + (c - 0.5_dp)/dem%ppd; lat1 = lat0 + 1.0_dp/dem%ppd; ky = dem%ppd*deg
-      end if
-      kx = dem%ppd*deg
-      lon0 = (i + 0.5_dp)/dem%ppd
-      ! cell row c lies between DEM rows c and c + 1 (0 and nlat + 1: the poles),
-      ! cell column i between DEM columns i + 1 and i + 2
-      r1 = node(i + 1, c); r2 = node(i + 2, c)
-      r3 = node(i + 1, c + 1); r4 = node(i + 2, c + 1)
       rt = max(abs(r3 - r1), abs(r4 - r2))*ky
       rp = max(abs(r2 - r1), abs(r4 - r3))*kx
       rtp = abs(r1 - r2 - r3 + r4)*ky*kx
@@ -405,11 +394,9 @@ contains
         ct = rh/gn; st_ = g(3)/gn; cp = g(1)/rh; sp_ = g(2)/rh
         nh = [-st_*cp, -st_*sp_, ct]                   ! local north
         eh = [-sp_, cp, 0.0_dp]                        ! local east
-        fy = min(max((la*deg - lat0)/(lat1 - lat0), 0.0_dp), 1.0_dp)
-        fxx = east_of(lon0*rad, lo_)*deg*dem%ppd
-        if (fxx > 1.5_dp) fxx = 0.0_dp                 ! a hair west of the cell edge
-        fxx = min(max(fxx, 0.0_dp), 1.0_dp)
-        f = gn - (((r1 + fxx*(r2 - r1)) + fy*((r3 + fxx*(r4 - r3)) - (r1 + fxx*(r2 - r1)))))
+        fy = frac_lat(la)
+        fxx = frac_lon(lo_)
+        f = gn - patch(fy, fxx)
         fp = dot_product(g, l)/gn &
              - ((r3 - r1)*(1.0_dp - fxx) + (r4 - r2)*fxx)*ky*dot_product(l, nh)/gn &
              - ((r2 - r1)*(1.0_dp - fy) + (r4 - r3)*fy)*kx*dot_product(l, eh)/max(rh, 1.0e-300_dp)
@@ -533,22 +520,21 @@ contains
     end subroutine exclude
 
     !> Highest surface radius over latitudes [lat_lo, lat_hi] and east
-    !> longitudes [lon0, lon0 + span] (radians; span < pi), or all longitudes.
-    real(dp) function box_max(lat_lo, lat_hi, lon0, span, full_lon, c_one, i_one) result(m)
-      real(dp), intent(in) :: lat_lo, lat_hi, lon0, span
+    !> longitudes [lon_w, lon_w + span] (radians; span < pi), or all longitudes.
+    real(dp) function box_max(lat_lo, lat_hi, lon_w, span, full_lon, c_one, i_one) result(m)
+      real(dp), intent(in) :: lat_lo, lat_hi, lon_w, span
       logical, intent(in) :: full_lon
       !> the cell row and column when the box lies in one cell, else -1
       integer, intent(out) :: c_one, i_one
       integer :: c0, c1, i0, i1, ncell_c, ncell_i, k, bc0, bc1, bi0, bi1, bc, bi, ii
-      real(dp) :: x0, x1, r, corners(2, 2)
-      integer :: st, p, q
+      real(dp) :: x0, x1, y0, y1
       c0 = cell_row(lat_lo)
       c1 = cell_row(lat_hi)
       if (full_lon) then
         i0 = 0
         i1 = dem%nlon - 1
       else
-        x0 = east_of(rad*0.5_dp/dem%ppd, lon0)*deg*dem%ppd
+        x0 = east_of(rad*0.5_dp/dem%ppd, lon_w)*deg*dem%ppd
         x1 = x0 + span*deg*dem%ppd
         i0 = min(int(x0), dem%nlon - 1)
         i1 = int(x1)                         ! may exceed nlon - 1: wraps below
@@ -566,19 +552,18 @@ contains
       if (ncell_c == 1 .and. ncell_i == 1) then
         c_one = c0
         i_one = i0
+        call load_cell(c0, i0)
+        if (full_lon) then
+          m = huge(1.0_dp)
+          return
+        end if
         ! inside one cell: the bilinear maximum over the sub-box is at its corners
-        do p = 1, 2
-          do q = 1, 2
-            if (full_lon) then
-              corners(p, q) = huge(1.0_dp)
-            else
-              call dem_radius(dem, merge(lat_lo, lat_hi, p == 1), lon0 + merge(0.0_dp, span, q == 1), r, st)
-              if (st /= stat_ok) stat = st
-              corners(p, q) = r
-            end if
-          end do
-        end do
-        m = maxval(corners)
+        ! (plus tol_hit for rounding in the corners' fractions, ~1e-11 of a pixel)
+        y0 = frac_lat(lat_lo)
+        y1 = frac_lat(lat_hi)
+        x0 = frac_lon(lon_w)
+        x1 = frac_lon(lon_w + span)
+        m = max(patch(y0, x0), patch(y0, x1), patch(y1, x0), patch(y1, x1)) + tol_hit
         return
       end if
       if (ncell_i >= dem%nlon) then
@@ -586,23 +571,22 @@ contains
         i1 = dem%nlon - 1
         ncell_i = dem%nlon
       end if
-      ! the level whose blocks are at least as large as the box: the box touches at most 2 x 2 of them
-      k = 1
-      do while (k < pyr%nlev .and. (2**k < ncell_c .or. 2**k < ncell_i))
-        k = k + 1
-      end do
-      bc0 = c0/2**k
-      bc1 = min(c1/2**k, pyr%rows(k) - 1)
+      ! the level whose blocks are at least as large as the box: the box touches at
+      ! most 2 x 2 of them (2^k >= n, k >= 1)
+      k = bit_size(ncell_c) - leadz(max(ncell_c, ncell_i, 2) - 1)
+      k = min(k, pyr%nlev)
+      bc0 = ishft(c0, -k)
+      bc1 = min(ishft(c1, -k), pyr%rows(k) - 1)
       m = -huge(1.0_dp)
       ! columns i0..i1 may run past the last column: the wrapped part is 0..i1-nlon
       do ii = 1, 2
         if (ii == 1) then
-          bi0 = i0/2**k
-          bi1 = min(i1, dem%nlon - 1)/2**k
+          bi0 = ishft(i0, -k)
+          bi1 = ishft(min(i1, dem%nlon - 1), -k)
         else
           if (i1 < dem%nlon) exit
           bi0 = 0
-          bi1 = (i1 - dem%nlon)/2**k
+          bi1 = ishft(i1 - dem%nlon, -k)
         end if
         do bc = bc0, bc1
           do bi = bi0, min(bi1, pyr%cols(k) - 1)
@@ -611,6 +595,49 @@ contains
         end do
       end do
     end function box_max
+
+    !> Make cell (c, i) the current cell: its node radii and extent. Cell row c
+    !> lies between DEM rows c and c + 1 (0 and nlat + 1: the poles, section 2.2),
+    !> cell column i between DEM columns i + 1 and i + 2.
+    subroutine load_cell(c, i)
+      integer, intent(in) :: c, i
+      if (c == 0) then
+        lat0 = -90.0_dp; lat1 = -90.0_dp + 0.5_dp/dem%ppd; ky = 2.0_dp*dem%ppd*deg
+      else if (c == dem%nlat) then
+        lat0 = 90.0_dp - 0.5_dp/dem%ppd; lat1 = 90.0_dp; ky = 2.0_dp*dem%ppd*deg
+      else
+        lat0 = -90.0_dp + (c - 0.5_dp)/dem%ppd; lat1 = lat0 + 1.0_dp/dem%ppd; ky = dem%ppd*deg
+      end if
+      kx = dem%ppd*deg
+      lon0 = (i + 0.5_dp)/dem%ppd*rad
+      r1 = node(i + 1, c); r2 = node(i + 2, c)                 ! eqs. 2-3
+      r3 = node(i + 1, c + 1); r4 = node(i + 2, c + 1)         ! eqs. 4-5
+    end subroutine load_cell
+
+    !> Fractional row offset (eq. 12's m_pix delta-theta, or its polar-cap
+    !> form) of latitude la (radians) in the current cell, clamped to [0, 1].
+    pure real(dp) function frac_lat(la)
+      real(dp), intent(in) :: la
+      frac_lat = min(max((la*deg - lat0)/(lat1 - lat0), 0.0_dp), 1.0_dp)
+    end function frac_lat
+
+    !> Fractional column offset (eqs. 10-11's m_pix delta-phi) of east
+    !> longitude lo (radians) in the current cell, clamped to [0, 1].
+    pure real(dp) function frac_lon(lo)
+      real(dp), intent(in) :: lo
+      frac_lon = east_of(lon0, lo)*deg*dem%ppd
+      if (frac_lon > 1.5_dp) frac_lon = 0.0_dp          ! a hair west of the cell edge
+      frac_lon = min(max(frac_lon, 0.0_dp), 1.0_dp)
+    end function frac_lon
+
+    !> The current cell's bilinear surface at fractional offsets (fy, fx): eqs. 10-12.
+    pure real(dp) function patch(fy, fx)
+      real(dp), intent(in) :: fy, fx
+      real(dp) :: ra, rb
+      ra = r1 + fx*(r2 - r1)                            ! eq. 10
+      rb = r3 + fx*(r4 - r3)                            ! eq. 11
+      patch = ra + fy*(rb - ra)                         ! eq. 12
+    end function patch
 
     !> Cell row (0 = south cap, nlat = north cap) holding latitude lat (radians).
     integer function cell_row(lat)
