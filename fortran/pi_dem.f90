@@ -305,14 +305,19 @@ contains
   !> map: address of nlon*nlat records of itemsize 4 (real32) or 8 (real64),
   !> which must stay mapped while `dem` is used.
   !>
+  !> poles (optional): the polar means (south, north) that an earlier attach of
+  !> the same map set in dem%pole_south and dem%pole_north; given, the two
+  !> polar rows (2 x 46,080 records at 128 ppd) are not read again.
+  !>
   !> stat: as dem_attach, stat_bad_mode for another itemsize, stat_bad_radii
   !> when a polar row holds an invalid radius.
-  subroutine dem_attach_map(map, itemsize, ppd, rmax, f, re, dem, stat)
+  subroutine dem_attach_map(map, itemsize, ppd, rmax, f, re, dem, stat, poles)
     type(c_ptr), intent(in) :: map
     integer, intent(in) :: itemsize, ppd
     real(dp), intent(in) :: rmax, f, re
     type(dem_t), intent(out) :: dem
     integer, intent(out) :: stat
+    real(dp), intent(in), optional :: poles(2)
     call set_grid(ppd, rmax, f, re, dem, stat)
     if (stat == stat_ok .and. itemsize /= 4 .and. itemsize /= 8) stat = stat_bad_mode
     if (stat /= stat_ok) return
@@ -322,6 +327,11 @@ contains
       call c_f_pointer(map, dem%map_sp, [dem%nlon, dem%nlat])
     else
       call c_f_pointer(map, dem%map_dp, [dem%nlon, dem%nlat])
+    end if
+    if (present(poles)) then
+      dem%pole_south = poles(1)
+      dem%pole_north = poles(2)
+      return
     end if
     call row_mean(dem, 1, dem%pole_south, stat)
     if (stat == stat_ok) call row_mean(dem, dem%nlat, dem%pole_north, stat)

@@ -67,10 +67,35 @@ subroutine core_intersect_file(path, read_mode, n, s, l, step_mode, tangent_mode
   call dem_close(dem)
 end subroutine core_intersect_file
 
+!> The polar means (south, north) of a memory-mapped `.dem` file's grid, as
+!> dem_attach_map computes them, for core_intersect_mapped's `poles`.
+subroutine core_map_poles(nbytes, bytes, itemsize, ppd, rmax, f, re, poles, stat)
+  use, intrinsic :: iso_c_binding, only: c_loc, c_int8_t
+  use pi_kinds, only: dp, i8
+  use pi_dem, only: dem_t, dem_attach_map
+  use pi_status, only: stat_dem_size
+  implicit none
+  integer(i8), intent(in) :: nbytes
+  integer(c_int8_t), intent(in), target :: bytes(nbytes)
+  integer, intent(in) :: itemsize, ppd
+  real(dp), intent(in) :: rmax, f, re
+  real(dp), intent(out) :: poles(2)
+  integer, intent(out) :: stat
+  type(dem_t) :: dem
+  poles = 0.0_dp
+  if (ppd < 1 .or. nbytes /= 64800_i8*ppd*ppd*itemsize) then
+    stat = stat_dem_size
+    return
+  end if
+  call dem_attach_map(c_loc(bytes), itemsize, ppd, rmax, f, re, dem, stat)
+  poles = [dem%pole_south, dem%pole_north]
+end subroutine core_map_poles
+
 !> As core_intersect_file with use_map, on the caller's own read-only memory map
 !> of the `.dem` file (native byte order), passed as its bytes: the map outlives
-!> the call, so the pages it has brought in are not faulted in again.
-subroutine core_intersect_mapped(nbytes, bytes, itemsize, ppd, rmax, f, re, n, s, l, step_mode, &
+!> the call, so the pages it has brought in are not faulted in again. poles:
+!> the map's polar means from core_map_poles (the polar rows are not re-read).
+subroutine core_intersect_mapped(nbytes, bytes, itemsize, ppd, rmax, f, re, poles, n, s, l, step_mode, &
                                  tangent_mode, threads, method, npyr, pyr_data, nlev, pyr_meta, &
                                  p, t, tc, sc, scal, status, nsteps, stat)
   use, intrinsic :: iso_c_binding, only: c_loc, c_int8_t
@@ -85,7 +110,7 @@ subroutine core_intersect_mapped(nbytes, bytes, itemsize, ppd, rmax, f, re, n, s
   integer, intent(in) :: itemsize, ppd, n, step_mode, tangent_mode, threads, method, npyr, nlev
   real(sp), intent(in), target :: pyr_data(npyr)
   integer, intent(in) :: pyr_meta(3, nlev)
-  real(dp), intent(in) :: rmax, f, re, s(3, n), l(3, n)
+  real(dp), intent(in) :: rmax, f, re, poles(2), s(3, n), l(3, n)
   real(dp), intent(out) :: p(3, n), t(3, n), tc(3, n), sc(3, n), scal(9, n)
   integer, intent(out) :: status(n), nsteps(n), stat
   type(dem_t) :: dem
@@ -97,7 +122,7 @@ subroutine core_intersect_mapped(nbytes, bytes, itemsize, ppd, rmax, f, re, n, s
     return
   end if
   call pyramid_attach(pyr_data, pyr_meta, pyr)
-  call dem_attach_map(c_loc(bytes), itemsize, ppd, rmax, f, re, dem, stat)
+  call dem_attach_map(c_loc(bytes), itemsize, ppd, rmax, f, re, dem, stat, poles)
   if (stat /= stat_ok) return
   call intersect_packed(dem, n, s, l, step_mode, tangent_mode, p, t, tc, sc, scal, status, nsteps, stat, &
                         threads, method, pyr)

@@ -151,6 +151,7 @@ class DEM:
         self.path = path
         self._radii64 = None
         self._pyramid = None
+        self._map_poles = None
 
     # construction -----------------------------------------------------------------
     @classmethod
@@ -242,6 +243,20 @@ class DEM:
         if not self.radii.flags.c_contiguous:
             return None
         return self.radii.reshape(-1).view(np.int8)
+
+    def mapped_poles(self) -> np.ndarray:
+        """The polar means (south, north) of the rows next to the poles, as the
+        Fortran core computes them from :meth:`mapped_bytes` (section 2.2),
+        computed once and kept, so that each ``io="mmap"`` call does not re-read
+        the two polar rows (92,160 records at 128 ppd)."""
+        if self._map_poles is None:
+            from . import _core
+
+            poles, stat = _core.core_map_poles(self.mapped_bytes(), self.radii.dtype.itemsize, self.ppd,
+                                               self.rmax, self.f, self.re)
+            raise_for_stat(stat, f"DEM polar rows ({self.path})")
+            self._map_poles = poles
+        return self._map_poles
 
     def radii64(self) -> np.ndarray:
         """The grid as a C-ordered float64 array (converted once and kept)."""

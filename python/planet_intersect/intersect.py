@@ -93,6 +93,9 @@ def _as_vectors(v, name: str) -> np.ndarray:
         v = v[None, :]
     if v.ndim != 2 or v.shape[1] != 3:
         raise ValueError(f"{name}: expected shape (3,) or (N, 3), got {shape}")
+    n2 = np.einsum("ij,ij->i", v, v)                 # one pass: finite and non-zero rows pass
+    if np.isfinite(n2).all() and n2.all():
+        return v
     bad = ~np.isfinite(v).all(axis=1)
     if bad.any():
         raise ValueError(f"{name}[{int(np.argmax(bad))}] has NaN or Inf components: {v[np.argmax(bad)]}")
@@ -199,7 +202,7 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
         if mapped is not None:
             # the DEM's own memory map, open between calls: pages already brought in stay mapped
             out = _core.core_intersect_mapped(mapped, dem.radii.dtype.itemsize, dem.ppd, dem.rmax, dem.f, dem.re,
-                                              s.T, l.T, step_mode, _TANGENT[tangent], pyr_data, pyr_meta.T, **extra)
+                                              dem.mapped_poles(), s.T, l.T, step_mode, _TANGENT[tangent], pyr_data, pyr_meta.T, **extra)
         else:
             out = _core.core_intersect_file(str(dem.path), 1, s.T, l.T, step_mode, _TANGENT[tangent], pyr_data,
                                             pyr_meta.T, use_map=int(io == "mmap"), **extra)
