@@ -57,6 +57,13 @@ contains
   pure subroutine ll(x, lat, lon)
     real(dp), intent(in) :: x(3)
     real(dp), intent(out) :: lat, lon
+    lat = lat_of(x)
+    lon = lon_of(x)
+  end subroutine ll
+
+  !> Planetocentric latitude of x (radians), as in ll.
+  pure real(dp) function lat_of(x) result(lat)
+    real(dp), intent(in) :: x(3)
     real(dp) :: rho
     rho = sqrt(x(1)*x(1) + x(2)*x(2))
     if (rho > 0.0_dp) then
@@ -65,6 +72,11 @@ contains
       lat = sign(0.5_dp*pi, x(3))
       if (x(3) == 0.0_dp) lat = 0.0_dp
     end if
+  end function lat_of
+
+  !> East longitude [0, 2 pi) of x (radians), as in ll.
+  pure real(dp) function lon_of(x) result(lon)
+    real(dp), intent(in) :: x(3)
     if (abs(x(1)) >= abs(x(2))) then
       if (x(1) == 0.0_dp) then
         lon = 0.0_dp                                  ! on the axis
@@ -78,7 +90,7 @@ contains
     end if
     if (lon < 0.0_dp) lon = lon + 2.0_dp*pi
     if (lon >= 2.0_dp*pi) lon = 0.0_dp
-  end subroutine ll
+  end function lon_of
 
   !> East longitude difference lon - lon0 wrapped into [0, 2 pi), for angles
   !> within 2 pi of each other (the exact search's longitudes lie in [0, 2 pi)):
@@ -97,6 +109,45 @@ contains
     real(dp), intent(in) :: x(3)
     length = sqrt(x(1)*x(1) + x(2)*x(2) + x(3)*x(3))
   end function length
+
+  !> sin and cos of x (radians, |x| <= 2 pi + pi/4) without a library call:
+  !> fdlibm's (musl's) kernels __sin and __cos on [-pi/4, pi/4] (error < 1 ulp)
+  !> after reduction by the nearest multiple n of pi/2 in two parts (pio2_1 has
+  !> 33 bits, so n pio2_1 and x - n pio2_1 are exact). glibc's sincos was 4 % of
+  !> the 128 ppd limb scan: every split at a block boundary needs one.
+  pure subroutine sin_cos(x, s, c)
+    real(dp), intent(in) :: x
+    real(dp), intent(out) :: s, c
+    real(dp), parameter :: pio2_1 = 1.57079632673412561417e+00_dp, pio2_1t = 6.07710050650619224932e-11_dp
+    real(dp), parameter :: s1 = -1.66666666666666324348e-01_dp, s2 = 8.33333333332248946124e-03_dp, &
+      s3 = -1.98412698298579493134e-04_dp, s4 = 2.75573137070700676789e-06_dp, &
+      s5 = -2.50507602534068634195e-08_dp, s6 = 1.58969099521155010221e-10_dp
+    real(dp), parameter :: c1 = 4.16666666666666019037e-02_dp, c2 = -1.38888888888741095749e-03_dp, &
+      c3 = 2.48015872894767294178e-05_dp, c4 = -2.75573143513906633035e-07_dp, &
+      c5 = 2.08757232129817482790e-09_dp, c6 = -1.13596475577881948265e-11_dp
+    real(dp) :: y, z, w, r, hz, sk, ck
+    integer :: n
+    n = nint(x/(0.5_dp*pi))
+    y = (x - n*pio2_1) - n*pio2_1t
+    z = y*y
+    w = z*z
+    r = s2 + z*(s3 + z*s4) + z*w*(s5 + z*s6)
+    sk = y + z*y*(s1 + z*r)                                       ! __sin(y, 0, 0)
+    r = z*(c1 + z*(c2 + z*c3)) + w*w*(c4 + z*(c5 + z*c6))
+    hz = 0.5_dp*z
+    w = 1.0_dp - hz
+    ck = w + (((1.0_dp - w) - hz) + z*r)                          ! __cos(y, 0)
+    select case (modulo(n, 4))
+    case (0)
+      s = sk; c = ck
+    case (1)
+      s = ck; c = -sk
+    case (2)
+      s = -sk; c = -ck
+    case default
+      s = -ck; c = sk
+    end select
+  end subroutine sin_cos
 
   !> Attach a pyramid built by the caller (planet_intersect.dem.DEM.pyramid):
   !> meta(1:3, k) = rows, columns and 0-based offset of level k in data.
@@ -127,6 +178,8 @@ contains
     real(dp) :: stack(6, max_depth), a, b, mid, fm, fb, la_a, lo_a, la_b, lo_b
     !> the precision of the returned entry (the leaves of the search are tol long)
     real(dp) :: tol_hit
+    !> the distance along the ray of its closest approach to the centre
+    real(dp) :: d_near
     integer :: top, cell_c, cell_i, box_c0, box_c1, box_i0, box_i1
     !> the cell of the last one-cell box (load_cell): its node radii (eqs. 2-5;
     !> r1, r2 south, r3, r4 north), latitude band (degrees), first longitude
@@ -137,6 +190,7 @@ contains
     hit = .false.
     d_hit = 0.0_dp
     tol_hit = 1.0e-3_dp*tol
+    d_near = -dot_product(s, l)
     nodes = 0
     stat = stat_ok
     ! the stack holds segment ends with their latitude and longitude, so that each
@@ -224,7 +278,7 @@ contains
       logical, intent(out) :: ok
       integer :: hr, hc, cb, ib, k
       real(dp) :: ga(3), phi, lam, sp2, cp2, qa, qb, qc, disc, q, t, t1, t2, nrm(3), dn, x, dx, la, lo, len
-      real(dp) :: x0, g0(3), rho2, dla, dlo, la0, lo0
+      real(dp) :: x0, g0(3), rho2, dla, dlo, la0, lo0, sb, cb_
       logical :: by_row, side_a
       ok = .false.
       hr = -1
@@ -246,8 +300,9 @@ contains
         ! latitude cone phi: cos^2 phi z^2 = sin^2 phi (x^2 + y^2), z on phi's side
         cb = ishft(ishft(box_c1, -hr), hr)              ! first row of the upper block
         phi = (-90.0_dp + (cb - 0.5_dp)/dem%ppd)*rad
-        sp2 = sin(phi)**2
-        cp2 = cos(phi)**2
+        call sin_cos(phi, sb, cb_)
+        sp2 = sb*sb
+        cp2 = cb_*cb_
         qa = cp2*l(3)**2 - sp2*(l(1)**2 + l(2)**2)
         qb = 2.0_dp*(cp2*ga(3)*l(3) - sp2*(ga(1)*l(1) + ga(2)*l(2)))
         qc = cp2*ga(3)**2 - sp2*(ga(1)**2 + ga(2)**2)
@@ -276,11 +331,12 @@ contains
           ib = ishft(ishft(box_i1, -hc), hc)
         end if
         lam = (ib + 0.5_dp)/dem%ppd*rad
-        nrm = [-sin(lam), cos(lam), 0.0_dp]
+        call sin_cos(lam, sb, cb_)
+        nrm = [-sb, cb_, 0.0_dp]
         dn = dot_product(l, nrm)
         if (dn == 0.0_dp) return
         t = -dot_product(ga, nrm)/dn
-        if ((ga(1) + t*l(1))*cos(lam) + (ga(2) + t*l(2))*sin(lam) <= 0.0_dp) return
+        if ((ga(1) + t*l(1))*cb_ + (ga(2) + t*l(2))*sb <= 0.0_dp) return
         cb = 0
         side_a = col_past(lo_a, ib)
       end if
@@ -299,7 +355,14 @@ contains
       if (rho2 <= 0.0_dp) return                      ! on the axis: split at the middle
       dla = (l(3)*rho2 - g0(3)*(g0(1)*l(1) + g0(2)*l(2)))/(sqrt(rho2)*(rho2 + g0(3)*g0(3)))
       dlo = (g0(1)*l(2) - g0(2)*l(1))/rho2
-      call ll(g0, la0, lo0)
+      ! the crossing's own coordinate is the boundary's (to the root's rounding)
+      if (by_row) then
+        la0 = phi
+        lo0 = lon_of(g0)
+      else
+        la0 = atan(g0(3)/sqrt(rho2))
+        lo0 = east_of(0.0_dp, lam)
+      end if
       la = la0
       lo = lo0
       if (past(by_row, cb, ib, la, lo) .eqv. side_a) then
@@ -376,7 +439,7 @@ contains
       rt = max(abs(r3 - r1), abs(r4 - r2))*ky
       rp = max(abs(r2 - r1), abs(r4 - r3))*kx
       rtp = abs(r1 - r2 - r3 + r4)*ky*kx
-      rlo = length(s + min(max(-dot_product(s, l), a), b)*l)
+      rlo = length(s + min(max(d_near, a), b)*l)
       th1 = max(abs(lat0), abs(lat1))*rad
       clo = cos(th1)
       if (clo <= 1.0e-9_dp) return                     ! at a pole: leave it to the subdivision
@@ -477,27 +540,27 @@ contains
       real(dp), intent(in) :: a, b
       logical, intent(out) :: excluded
       integer :: c_one, i_one
-      real(dp) :: dc, rmin, ga(3), gb(3), lat_lo, lat_hi, dstar, den, gs(3)
-      real(dp) :: la_s, lo_s, sweep, rmax_box, x_a, span
+      real(dp) :: dc, rmin, ga(3), gb(3), lat_lo, lat_hi, dstar, den, gs(3), gl
+      real(dp) :: la_s, sweep, rmax_box, x_a, span
       logical :: full_lon
       ! smallest distance of the segment from the centre
-      dc = min(max(-dot_product(s, l), a), b)
+      dc = min(max(d_near, a), b)
       rmin = length(s + dc*l)
       if (rmin >= dem%rmax) then
         excluded = .true.
         return
       end if
       ga = s + a*l
-      gb = s + b*l
       lat_lo = min(la_a, la_b)
       lat_hi = max(la_a, la_b)
       ! the one interior extremum of latitude along a line (d/dd of z/|g| = 0)
-      den = l(3)*dot_product(ga, l) - ga(3)
+      gl = dot_product(ga, l)
+      den = l(3)*gl - ga(3)
       if (abs(den) > 0.0_dp) then
-        dstar = a + (ga(3)*dot_product(ga, l) - l(3)*dot_product(ga, ga))/den
+        dstar = a + (ga(3)*gl - l(3)*dot_product(ga, ga))/den
         if (dstar > a .and. dstar < b) then
           gs = s + dstar*l
-          call ll(gs, la_s, lo_s)
+          la_s = lat_of(gs)
           lat_lo = min(lat_lo, la_s)
           lat_hi = max(lat_hi, la_s)
         end if
@@ -508,8 +571,11 @@ contains
       sweep = lo_b - lo_a
       if (sweep > pi) sweep = sweep - 2.0_dp*pi
       if (sweep < -pi) sweep = sweep + 2.0_dp*pi
-      full_lon = (ga(1) == 0.0_dp .and. ga(2) == 0.0_dp) .or. (gb(1) == 0.0_dp .and. gb(2) == 0.0_dp) &
-                 .or. abs(sweep) > 0.9_dp*pi
+      full_lon = abs(sweep) > 0.9_dp*pi .or. (ga(1) == 0.0_dp .and. ga(2) == 0.0_dp)
+      if (.not. full_lon) then
+        gb = s + b*l
+        full_lon = gb(1) == 0.0_dp .and. gb(2) == 0.0_dp
+      end if
       x_a = lo_a
       if (sweep < 0.0_dp) x_a = lo_b          ! the interval [x_a, x_a + |sweep|]
       span = abs(sweep)
@@ -574,7 +640,7 @@ contains
       ! the level whose blocks are at least as large as the box: the box touches at
       ! most 2 x 2 of them (2^k >= n, k >= 1)
       k = bit_size(ncell_c) - leadz(max(ncell_c, ncell_i, 2) - 1)
-      k = min(k, pyr%nlev)
+      k = min(max(k - 2, 1), pyr%nlev)
       bc0 = ishft(c0, -k)
       bc1 = min(ishft(c1, -k), pyr%rows(k) - 1)
       m = -huge(1.0_dp)
