@@ -110,45 +110,6 @@ contains
     length = sqrt(x(1)*x(1) + x(2)*x(2) + x(3)*x(3))
   end function length
 
-  !> sin and cos of x (radians, |x| <= 2 pi + pi/4) without a library call:
-  !> fdlibm's (musl's) kernels __sin and __cos on [-pi/4, pi/4] (error < 1 ulp)
-  !> after reduction by the nearest multiple n of pi/2 in two parts (pio2_1 has
-  !> 33 bits, so n pio2_1 and x - n pio2_1 are exact). glibc's sincos was 4 % of
-  !> the 128 ppd limb scan: every split at a block boundary needs one.
-  pure subroutine sin_cos(x, s, c)
-    real(dp), intent(in) :: x
-    real(dp), intent(out) :: s, c
-    real(dp), parameter :: pio2_1 = 1.57079632673412561417e+00_dp, pio2_1t = 6.07710050650619224932e-11_dp
-    real(dp), parameter :: s1 = -1.66666666666666324348e-01_dp, s2 = 8.33333333332248946124e-03_dp, &
-      s3 = -1.98412698298579493134e-04_dp, s4 = 2.75573137070700676789e-06_dp, &
-      s5 = -2.50507602534068634195e-08_dp, s6 = 1.58969099521155010221e-10_dp
-    real(dp), parameter :: c1 = 4.16666666666666019037e-02_dp, c2 = -1.38888888888741095749e-03_dp, &
-      c3 = 2.48015872894767294178e-05_dp, c4 = -2.75573143513906633035e-07_dp, &
-      c5 = 2.08757232129817482790e-09_dp, c6 = -1.13596475577881948265e-11_dp
-    real(dp) :: y, z, w, r, hz, sk, ck
-    integer :: n
-    n = nint(x/(0.5_dp*pi))
-    y = (x - n*pio2_1) - n*pio2_1t
-    z = y*y
-    w = z*z
-    r = s2 + z*(s3 + z*s4) + z*w*(s5 + z*s6)
-    sk = y + z*y*(s1 + z*r)                                       ! __sin(y, 0, 0)
-    r = z*(c1 + z*(c2 + z*c3)) + w*w*(c4 + z*(c5 + z*c6))
-    hz = 0.5_dp*z
-    w = 1.0_dp - hz
-    ck = w + (((1.0_dp - w) - hz) + z*r)                          ! __cos(y, 0)
-    select case (modulo(n, 4))
-    case (0)
-      s = sk; c = ck
-    case (1)
-      s = ck; c = -sk
-    case (2)
-      s = -sk; c = -ck
-    case default
-      s = -ck; c = sk
-    end select
-  end subroutine sin_cos
-
   !> Attach a pyramid built by the caller (planet_intersect.dem.DEM.pyramid):
   !> meta(1:3, k) = rows, columns and 0-based offset of level k in data.
   !> The arrays must outlive the pyramid_t.
@@ -300,7 +261,8 @@ contains
         ! latitude cone phi: cos^2 phi z^2 = sin^2 phi (x^2 + y^2), z on phi's side
         cb = ishft(ishft(box_c1, -hr), hr)              ! first row of the upper block
         phi = (-90.0_dp + (cb - 0.5_dp)/dem%ppd)*rad
-        call sin_cos(phi, sb, cb_)
+        sb = sin(phi)
+        cb_ = cos(phi)
         sp2 = sb*sb
         cp2 = cb_*cb_
         qa = cp2*l(3)**2 - sp2*(l(1)**2 + l(2)**2)
@@ -331,7 +293,8 @@ contains
           ib = ishft(ishft(box_i1, -hc), hc)
         end if
         lam = (ib + 0.5_dp)/dem%ppd*rad
-        call sin_cos(lam, sb, cb_)
+        sb = sin(lam)
+        cb_ = cos(lam)
         nrm = [-sb, cb_, 0.0_dp]
         dn = dot_product(l, nrm)
         if (dn == 0.0_dp) return
@@ -516,10 +479,12 @@ contains
     end function entry
 
     !> DEM radius at node (column i, row j) of dem_node.
-    real(dp) function node(i, j)
+    real(dp) function node(i, j) result(r)
       integer, intent(in) :: i, j
       integer :: st
-      call dem_node(dem, i, j, node, st)
+      ! (with the result passed under the function's own name, gfortran built a
+      ! trampoline, and the library then needed an executable stack)
+      call dem_node(dem, i, j, r, st)
       if (st /= stat_ok) stat = st
     end function node
 
