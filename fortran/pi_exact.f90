@@ -141,6 +141,9 @@ contains
     real(dp) :: tol_hit
     !> the distance along the ray of its closest approach to the centre
     real(dp) :: d_near
+    !> the first row's latitude (degrees) and first column's longitude (radians),
+    !> as dem_radius computes them (a division each, once per ray, not per test)
+    real(dp) :: lat_first, lon_first
     integer :: top, cell_c, cell_i, box_c0, box_c1, box_i0, box_i1
     !> the cell of the last one-cell box (load_cell): its node radii (eqs. 2-5;
     !> r1, r2 south, r3, r4 north), latitude band (degrees), first longitude
@@ -152,6 +155,8 @@ contains
     d_hit = 0.0_dp
     tol_hit = 1.0e-3_dp*tol
     d_near = -dot_product(s, l)
+    lat_first = -90.0_dp + 0.5_dp/dem%ppd
+    lon_first = rad*0.5_dp/dem%ppd
     nodes = 0
     stat = stat_ok
     ! the stack holds segment ends with their latitude and longitude, so that each
@@ -373,7 +378,7 @@ contains
       real(dp), intent(in) :: lon
       integer, intent(in) :: ib
       integer :: u
-      u = min(int(east_of(rad*0.5_dp/dem%ppd, lon)*deg*dem%ppd), dem%nlon - 1)
+      u = min(int(east_of(lon_first, lon)*deg*dem%ppd), dem%nlon - 1)
       if (u < box_i0) u = u + dem%nlon
       col_past = u >= ib
     end function col_past
@@ -565,7 +570,7 @@ contains
         i0 = 0
         i1 = dem%nlon - 1
       else
-        x0 = east_of(rad*0.5_dp/dem%ppd, lon_w)*deg*dem%ppd
+        x0 = east_of(lon_first, lon_w)*deg*dem%ppd
         x1 = x0 + span*deg*dem%ppd
         i0 = min(int(x0), dem%nlon - 1)
         i1 = int(x1)                         ! may exceed nlon - 1: wraps below
@@ -674,7 +679,7 @@ contains
     integer function cell_row(lat)
       real(dp), intent(in) :: lat
       real(dp) :: y
-      y = (lat*deg - (-90.0_dp + 0.5_dp/dem%ppd))*dem%ppd
+      y = (lat*deg - lat_first)*dem%ppd
       if (y < 0.0_dp) then
         cell_row = 0
       else

@@ -125,9 +125,13 @@ contains
     b = b - dot_product(b, l)*l
     c = s - dot_product(s, l)*l
     beta = 0.0_dp
+    cb = 1.0_dp                                            ! cos and sin of beta = 0
+    sb = 0.0_dp
     do it = 1, newton_maxit
-      cb = cos(beta)
-      sb = sin(beta)
+      if (it > 1) then
+        cb = cos(beta)
+        sb = sin(beta)
+      end if
       q = a*cb + b*sb - c
       qb = -a*sb + b*cb
       qbb = -a*cb - b*sb
