@@ -27,7 +27,7 @@ module pi_dem
   private
 
   public :: dem_t, dem_read_header, dem_open, dem_attach, dem_attach_map, dem_close, dem_radius, &
-            dem_node, dem_polar_mean, dem_paths
+            dem_cell_nodes, dem_polar_mean, dem_paths
 
   !> An open DEM (either storage mode).
   type :: dem_t
@@ -474,27 +474,37 @@ contains
     if (stat /= stat_ok) r = 0.0_dp
   end subroutine dem_radius
 
-  !> Radius of grid node (i, j): column i = 1..nlon (wrapping: 0 is nlon,
-  !> nlon + 1 is 1), row j = 1..nlat, with j = 0 and j = nlat + 1 the south and
-  !> north poles, which carry the mean radius of the adjacent row (section 2.2).
-  !> The corners r1..r4 of eqs. 2-5 are such nodes.
+  !> The corners r1..r4 of eqs. 2-5 of the cell between DEM columns i + 1 and
+  !> i + 2 (i = 0..nlon-1; column nlon + 1 is column 1) and DEM rows c and c + 1
+  !> (c = 0..nlat; rows 0 and nlat + 1 are the poles): r(1:2) on row c, r(3:4)
+  !> on row c + 1, west first. The poles carry the mean radius of the adjacent
+  !> row (section 2.2).
   !>
   !> stat: stat_ok; in read_mode 1 as dem_radius (r is then 0).
-  subroutine dem_node(dem, i, j, r, stat)
+  subroutine dem_cell_nodes(dem, i, c, r, stat)
     type(dem_t), intent(in) :: dem
-    integer, intent(in) :: i, j
-    real(dp), intent(out) :: r
+    integer, intent(in) :: i, c
+    real(dp), intent(out) :: r(4)
     integer, intent(out) :: stat
+    integer :: i1, i2
     stat = stat_ok
-    if (j <= 0) then
-      r = dem%pole_south
-    else if (j > dem%nlat) then
-      r = dem%pole_north
+    i1 = i + 1
+    i2 = i + 2
+    if (i2 > dem%nlon) i2 = i2 - dem%nlon
+    if (c <= 0) then
+      r(1:2) = dem%pole_south
     else
-      call node_value(dem, modulo(i - 1, dem%nlon) + 1, j, r, stat)
-      if (stat /= stat_ok) r = 0.0_dp
+      call node_value(dem, i1, c, r(1), stat)
+      call node_value(dem, i2, c, r(2), stat)
     end if
-  end subroutine dem_node
+    if (c >= dem%nlat) then
+      r(3:4) = dem%pole_north
+    else
+      call node_value(dem, i1, c + 1, r(3), stat)
+      call node_value(dem, i2, c + 1, r(4), stat)
+    end if
+    if (stat /= stat_ok) r = 0.0_dp
+  end subroutine dem_cell_nodes
 
   !> Record (i, j) of the grid (eq. 1) in either storage mode; stat is set only
   !> when the record cannot be read or is invalid.

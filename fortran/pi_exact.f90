@@ -28,7 +28,7 @@ module pi_exact
   use pi_kinds, only: dp, sp, i8
   use pi_status
   use pi_vector, only: rad, deg, pi
-  use pi_dem, only: dem_t, dem_radius, dem_node
+  use pi_dem, only: dem_t, dem_radius, dem_cell_nodes
   implicit none
   private
 
@@ -46,6 +46,8 @@ module pi_exact
 
   !> Stack depth of the subdivision (segments halve each level).
   integer, parameter :: max_depth = 200
+  !> Angles (as tangents) up to which lat_near and lon_near use atan_small.
+  real(dp), parameter :: small_angle = 2.0_dp**(-10)
 
 contains
 
@@ -73,6 +75,49 @@ contains
       if (x(3) == 0.0_dp) lat = 0.0_dp
     end if
   end function lat_of
+
+  !> atan(u) for |u| <= small_angle, by its series to u^7 (the next term, u^9/9,
+  !> is below 1e-28).
+  pure real(dp) function atan_small(u)
+    real(dp), intent(in) :: u
+    real(dp) :: u2
+    u2 = u*u
+    atan_small = u - u*u2*(1.0_dp/3.0_dp - u2*(0.2_dp - u2/7.0_dp))
+  end function atan_small
+
+  !> Latitude of x (radians) from the latitude lat0 of a nearby point x0: lat0
+  !> plus the angle between (rho, z) and (rho0, z0), by atan_small when that is
+  !> small (within a cell, or a split of a fine segment), else lat_of. glibc's
+  !> atan, with its rounding-mode save/restore, was 12 % of the hit rays' time.
+  pure real(dp) function lat_near(x, x0, lat0) result(lat)
+    real(dp), intent(in) :: x(3), x0(3), lat0
+    real(dp) :: rho, rho0, c, d
+    rho = sqrt(x(1)*x(1) + x(2)*x(2))
+    rho0 = sqrt(x0(1)*x0(1) + x0(2)*x0(2))
+    c = x(3)*rho0 - x0(3)*rho
+    d = rho*rho0 + x(3)*x0(3)
+    if (d > 0.0_dp .and. abs(c) <= small_angle*d) then
+      lat = lat0 + atan_small(c/d)
+    else
+      lat = lat_of(x)
+    end if
+  end function lat_near
+
+  !> East longitude [0, 2 pi) of x from the longitude lon0 of a nearby point x0:
+  !> lon0 plus the angle between their xy projections, as lat_near.
+  pure real(dp) function lon_near(x, x0, lon0) result(lon)
+    real(dp), intent(in) :: x(3), x0(3), lon0
+    real(dp) :: c, d
+    c = x0(1)*x(2) - x0(2)*x(1)
+    d = x0(1)*x(1) + x0(2)*x(2)
+    if (d > 0.0_dp .and. abs(c) <= small_angle*d) then
+      lon = lon0 + atan_small(c/d)
+      if (lon < 0.0_dp) lon = lon + 2.0_dp*pi
+      if (lon >= 2.0_dp*pi) lon = lon - 2.0_dp*pi
+    else
+      lon = lon_of(x)
+    end if
+  end function lon_near
 
   !> East longitude [0, 2 pi) of x (radians), as in ll.
   pure real(dp) function lon_of(x) result(lon)
@@ -326,9 +371,9 @@ contains
       ! the crossing's own coordinate is the boundary's (to the root's rounding)
       if (by_row) then
         la0 = phi
-        lo0 = lon_of(g0)
+        lo0 = lon_near(g0, ga, lo_a)
       else
-        la0 = atan(g0(3)/sqrt(rho2))
+        la0 = lat_near(g0, ga, la_a)
         lo0 = east_of(0.0_dp, lam)
       end if
       la = la0
@@ -401,6 +446,7 @@ contains
       logical, intent(out) :: found, done
       real(dp) :: rt, rp, rtp, rlo, clo, tlo, k, x, f, fp
       real(dp) :: g(3), gn, la, lo_, ct, st_, cp, sp_, nh(3), eh(3), rh, th1, fy, fxx, t, lo2, hi2, fx2, x2, x_prev
+      real(dp) :: ga(3)
       integer :: j
       found = .false.
       done = .false.
@@ -414,13 +460,15 @@ contains
       tlo = tan(th1)
       k = (1.0_dp/rlo + 2.0_dp*rtp/(rlo*rlo*clo) + rt*(2.0_dp + tlo)/rlo**2 + 2.0_dp*rp/(rlo*clo)**2) &
           *1.001_dp + 1.0e-12_dp
+      ga = s + a*l
       x = a
       x_prev = a
       do j = 1, 200
         ! height and its slope at x, within this cell's patch
         g = s + x*l
         gn = length(g)
-        call ll(g, la, lo_)
+        la = lat_near(g, ga, la_a)
+        lo_ = lon_near(g, ga, lo_a)
         rh = sqrt(g(1)*g(1) + g(2)*g(2))               ! > 0: the poles are left to the subdivision
         ct = rh/gn; st_ = g(3)/gn; cp = g(1)/rh; sp_ = g(2)/rh
         nh = [-st_*cp, -st_*sp_, ct]                   ! local north
@@ -483,16 +531,6 @@ contains
       entry = hi
     end function entry
 
-    !> DEM radius at node (column i, row j) of dem_node.
-    real(dp) function node(i, j) result(r)
-      integer, intent(in) :: i, j
-      integer :: st
-      ! (with the result passed under the function's own name, gfortran built a
-      ! trampoline, and the library then needed an executable stack)
-      call dem_node(dem, i, j, r, st)
-      if (st /= stat_ok) stat = st
-    end function node
-
     !> |g(d)| - r(g(d)): negative below the surface.
     real(dp) function height(d)
       real(dp), intent(in) :: d
@@ -530,7 +568,7 @@ contains
         dstar = a + (ga(3)*gl - l(3)*dot_product(ga, ga))/den
         if (dstar > a .and. dstar < b) then
           gs = s + dstar*l
-          la_s = lat_of(gs)
+          la_s = lat_near(gs, ga, la_a)
           lat_lo = min(lat_lo, la_s)
           lat_hi = max(lat_hi, la_s)
         end if
@@ -637,6 +675,8 @@ contains
     !> cell column i between DEM columns i + 1 and i + 2.
     subroutine load_cell(c, i)
       integer, intent(in) :: c, i
+      real(dp) :: rc(4)
+      integer :: st
       if (c == 0) then
         lat0 = -90.0_dp; lat1 = -90.0_dp + 0.5_dp/dem%ppd; ky = 2.0_dp*dem%ppd*deg
       else if (c == dem%nlat) then
@@ -646,8 +686,9 @@ contains
       end if
       kx = dem%ppd*deg
       lon0 = (i + 0.5_dp)/dem%ppd*rad
-      r1 = node(i + 1, c); r2 = node(i + 2, c)                 ! eqs. 2-3
-      r3 = node(i + 1, c + 1); r4 = node(i + 2, c + 1)         ! eqs. 4-5
+      call dem_cell_nodes(dem, i, c, rc, st)                   ! eqs. 2-5
+      if (st /= stat_ok) stat = st
+      r1 = rc(1); r2 = rc(2); r3 = rc(3); r4 = rc(4)
     end subroutine load_cell
 
     !> Fractional row offset (eq. 12's m_pix delta-theta, or its polar-cap
