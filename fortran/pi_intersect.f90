@@ -97,7 +97,7 @@ contains
     !> method_stepping (default) or method_exact, which needs pyr.
     integer, intent(in), optional :: method
     type(pyramid_t), intent(in), optional :: pyr
-    real(dp) :: l(3), sn, cos_psi0, tn, half, d0, dm, nan, lat, lon, r_s
+    real(dp) :: l(3), nl, sn, cos_psi0, tn, half, d0, dm, nan, lat, lon, r_s
     real(dp) :: g(3), gn, rg, psi, dalpha, psi_next, denom, dg, d, d_next
     real(dp) :: g_next(3), gn_next, r_next, lat_next, lon_next, n(3), r_tc
     integer :: st, nodes
@@ -113,7 +113,8 @@ contains
     res%nsteps = 0
     res%niter = 0
 
-    if (.not. all(ieee_is_finite(l_in)) .or. norm2(l_in) <= 0.0_dp) then
+    nl = norm2(l_in)
+    if (.not. all(ieee_is_finite(l_in)) .or. nl <= 0.0_dp) then
       res%status = ray_bad_direction
       return
     end if
@@ -122,7 +123,7 @@ contains
       res%status = ray_bad_position
       return
     end if
-    l = l_in/norm2(l_in)
+    l = l_in/nl
 
     ! a spacecraft inside r_max must be above the surface
     if (sn <= dem%rmax) then

@@ -105,14 +105,15 @@ contains
     real(dp), intent(in) :: s(3), l(3), f, re
     real(dp), intent(out) :: tc(3), sc(3), d
     real(dp) :: w, sp(3), lp(3), tp(3), u(3), v(3), a(3), b(3), c(3), q(3), qb(3), qbb(3)
-    real(dp) :: beta, g1, g2, step, cb, sb, x(3)
+    real(dp) :: beta, g1, g2, step, cb, sb, x(3), ntp
     integer :: it
     w = 1.0_dp/(1.0_dp - f)
     sp = [s(1), s(2), s(3)*w]
     lp = unit_vector([l(1), l(2), l(3)*w])
     tp = sp - dot_product(sp, lp)*lp
-    if (norm2(tp) > 0.0_dp) then
-      u = tp/norm2(tp)
+    ntp = norm2(tp)
+    if (ntp > 0.0_dp) then
+      u = tp/ntp
     else
       u = unit_vector(perpendicular(lp))
     end if
