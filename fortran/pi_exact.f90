@@ -8,11 +8,13 @@
 !> radius bordering the block (as float32, rounded up and one ulp more, so it is
 !> never below the float64 value). A ray segment [a, b] cannot enter the surface if
 !> its smallest distance from the centre is at or above the highest surface
-!> radius over the latitude/longitude box the segment can touch; otherwise it is
-!> split where it crosses the coarsest block boundary inside its box (a
-!> latitude cone or a meridian half-plane), or in the middle when the box lies
-!> in one block, and the earlier part is searched first: a top-down walk of the
-!> pyramid along the ray. A segment inside one cell is searched by certified
+!> radius over the latitude/longitude box the segment can touch; otherwise, where
+!> the ray is still descending and enters the sphere of that radius far enough
+!> into the segment, the part before the entry is dropped (it is above that
+!> sphere); otherwise the segment is split where it crosses the coarsest block
+!> boundary inside its box (a latitude cone or a meridian half-plane), or in the
+!> middle when the box lies in one block, and the earlier part is searched
+!> first: a top-down walk of the pyramid along the ray. A segment inside one cell is searched by certified
 !> Newton steps on the cell's bilinear patch (cell_search). A segment shorter
 !> than `tol` that cannot be excluded is tested at its middle and end; the
 !> first with |g| < r is the hit, refined by bisection.
@@ -46,6 +48,10 @@ module pi_exact
 
   !> Stack depth of the subdivision (segments halve each level).
   integer, parameter :: max_depth = 200
+  !> A segment is shortened to where the ray enters the sphere of its box's
+  !> highest radius when that cuts off at least this fraction of it (else it is
+  !> split): 0.3 was the fastest of 0-0.7 on the 128 ppd limb scan.
+  real(dp), parameter :: clip_min = 0.3_dp
   !> Angles (as tangents) up to which lat_near and lon_near use atan_small.
   real(dp), parameter :: small_angle = 2.0_dp**(-10)
 
@@ -184,8 +190,12 @@ contains
     real(dp) :: stack(6, max_depth), a, b, mid, fm, fb, la_a, lo_a, la_b, lo_b
     !> the precision of the returned entry (the leaves of the search are tol long)
     real(dp) :: tol_hit
-    !> the distance along the ray of its closest approach to the centre
-    real(dp) :: d_near
+    !> the distance along the ray of its closest approach to the centre, and the
+    !> square of that distance from the centre
+    real(dp) :: d_near, tn2
+    !> the highest surface radius over the last excluded-or-not box (exclude)
+    real(dp) :: box_top
+    real(dp) :: d_in, g_in(3), g_a(3)
     !> the first row's latitude (degrees) and first column's longitude (radians),
     !> as dem_radius computes them (a division each, once per ray, not per test)
     real(dp) :: lat_first, lon_first
@@ -200,6 +210,8 @@ contains
     d_hit = 0.0_dp
     tol_hit = 1.0e-3_dp*tol
     d_near = -dot_product(s, l)
+    g_in = s + d_near*l
+    tn2 = dot_product(g_in, g_in)
     lat_first = -90.0_dp + 0.5_dp/dem%ppd
     lon_first = rad*0.5_dp/dem%ppd
     nodes = 0
@@ -236,6 +248,23 @@ contains
         if (done) then
           call resume()
           cycle
+        end if
+      end if
+      if (cell_c < 0 .and. a < d_near) then
+        ! the ray descends to the sphere of the box's highest radius, entering it at
+        ! d_in; where that cuts off at least clip_min of [a, b], start the segment
+        ! there (and test it again, in its smaller box) instead of splitting it
+        d_in = box_top**2 - tn2
+        if (d_in > 0.0_dp) then
+          d_in = d_near - sqrt(d_in)
+          if (d_in > a + clip_min*(b - a) .and. d_in < b) then
+            g_in = s + d_in*l
+            g_a = s + a*l
+            la_a = lat_near(g_in, g_a, la_a)
+            lo_a = lon_near(g_in, g_a, lo_a)
+            a = d_in
+            cycle
+          end if
         end if
       end if
       if (b - a <= tol .or. top >= max_depth) then
@@ -589,6 +618,7 @@ contains
       span = abs(sweep)
       rmax_box = box_max(lat_lo, lat_hi, x_a, span, full_lon, c_one, i_one)
       excluded = rmin >= rmax_box
+      box_top = rmax_box
       cell_c = c_one
       cell_i = i_one
     end subroutine exclude
