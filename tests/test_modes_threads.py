@@ -94,6 +94,11 @@ def test_mmap_reads_the_dems_own_map(tmp_path, rough):
     assert b is not None and b.nbytes == mine.nlat * mine.nlon * 4 and np.shares_memory(b, mine.radii)
     assert pi.DEM.read(rough.write(tmp_path / "o", dtype="float32", byteorder=other)).mapped_bytes() is None
     assert rough.mapped_bytes() is None                      # in memory: nothing to map
+    # the polar means (section 2.2) are computed once per DEM and kept for later calls
+    poles = mine.mapped_poles()
+    rows = np.asarray(mine.radii, dtype=np.float64)
+    np.testing.assert_allclose(poles, [rows[0].mean(), rows[-1].mean()], rtol=1e-14)
+    assert mine.mapped_poles() is poles
 
 
 def test_bad_io(rough_file):
