@@ -303,21 +303,27 @@ contains
   !> kernel has brought in are not faulted in again.
   !>
   !> map: address of nlon*nlat records of itemsize 4 (real32) or 8 (real64),
-  !> which must stay mapped while `dem` is used.
+  !> which must stay mapped while `dem` is used; nbytes: the map's length.
   !>
   !> poles (optional): the polar means (south, north) that an earlier attach of
   !> the same map set in dem%pole_south and dem%pole_north; given, the two
   !> polar rows (2 x 46,080 records at 128 ppd) are not read again.
   !>
-  !> stat: as dem_attach, stat_bad_mode for another itemsize, stat_bad_radii
-  !> when a polar row holds an invalid radius.
-  subroutine dem_attach_map(map, itemsize, ppd, rmax, f, re, dem, stat, poles)
+  !> stat: stat_dem_size when nbytes is not 180 ppd x 360 ppd records of
+  !> itemsize (or ppd < 1), else as dem_attach, stat_bad_mode for another
+  !> itemsize, stat_bad_radii when a polar row holds an invalid radius.
+  subroutine dem_attach_map(map, nbytes, itemsize, ppd, rmax, f, re, dem, stat, poles)
     type(c_ptr), intent(in) :: map
+    integer(i8), intent(in) :: nbytes
     integer, intent(in) :: itemsize, ppd
     real(dp), intent(in) :: rmax, f, re
     type(dem_t), intent(out) :: dem
     integer, intent(out) :: stat
     real(dp), intent(in), optional :: poles(2)
+    if (ppd < 1 .or. nbytes /= 64800_i8*ppd*ppd*itemsize) then
+      stat = stat_dem_size
+      return
+    end if
     call set_grid(ppd, rmax, f, re, dem, stat)
     if (stat == stat_ok .and. itemsize /= 4 .and. itemsize /= 8) stat = stat_bad_mode
     if (stat /= stat_ok) return

@@ -73,7 +73,7 @@ contains
   pure real(dp) function lat_of(x) result(lat)
     real(dp), intent(in) :: x(3)
     real(dp) :: rho
-    rho = sqrt(x(1)*x(1) + x(2)*x(2))
+    rho = rho_of(x)
     if (rho > 0.0_dp) then
       lat = atan(x(3)/rho)
     else
@@ -95,11 +95,11 @@ contains
   !> plus the angle between (rho, z) and (rho0, z0), by atan_small when that is
   !> small (within a cell, or a split of a fine segment), else lat_of. glibc's
   !> atan, with its rounding-mode save/restore, was 12 % of the hit rays' time.
-  pure real(dp) function lat_near(x, x0, lat0) result(lat)
-    real(dp), intent(in) :: x(3), x0(3), lat0
-    real(dp) :: rho, rho0, c, d
-    rho = sqrt(x(1)*x(1) + x(2)*x(2))
-    rho0 = sqrt(x0(1)*x0(1) + x0(2)*x0(2))
+  !> rho, rho0: the distances of x and x0 from the axis (rho_of), which the
+  !> callers have at hand.
+  pure real(dp) function lat_near(x, rho, x0, rho0, lat0) result(lat)
+    real(dp), intent(in) :: x(3), rho, x0(3), rho0, lat0
+    real(dp) :: c, d
     c = x(3)*rho0 - x0(3)*rho
     d = rho*rho0 + x(3)*x0(3)
     if (d > 0.0_dp .and. abs(c) <= small_angle*d) then
@@ -108,6 +108,12 @@ contains
       lat = lat_of(x)
     end if
   end function lat_near
+
+  !> Distance of x from the polar axis.
+  pure real(dp) function rho_of(x)
+    real(dp), intent(in) :: x(3)
+    rho_of = sqrt(x(1)*x(1) + x(2)*x(2))
+  end function rho_of
 
   !> East longitude [0, 2 pi) of x from the longitude lon0 of a nearby point x0:
   !> lon0 plus the angle between their xy projections, as lat_near.
@@ -202,7 +208,8 @@ contains
     integer :: top, cell_c, cell_i, box_c0, box_c1, box_i0, box_i1
     !> the cell of the last one-cell box (load_cell): its node radii (eqs. 2-5;
     !> r1, r2 south, r3, r4 north), latitude band (degrees), first longitude
-    !> (radians) and d(fraction)/d(angle) in latitude and longitude (per radian)
+    !> (radians) and d(fraction)/d(angle) in latitude and longitude (per radian;
+    !> kx is the same for every cell and set once)
     real(dp) :: r1, r2, r3, r4, lat0, lat1, lon0, ky, kx
     logical :: excluded, found, done, box_full, split_ok
 
@@ -214,6 +221,7 @@ contains
     tn2 = dot_product(g_in, g_in)
     lat_first = -90.0_dp + 0.5_dp/dem%ppd
     lon_first = rad*0.5_dp/dem%ppd
+    kx = dem%ppd*deg
     nodes = 0
     stat = stat_ok
     ! the stack holds segment ends with their latitude and longitude, so that each
@@ -260,7 +268,7 @@ contains
           if (d_in > a + clip_min*(b - a) .and. d_in < b) then
             g_in = s + d_in*l
             g_a = s + a*l
-            la_a = lat_near(g_in, g_a, la_a)
+            la_a = lat_near(g_in, rho_of(g_in), g_a, rho_of(g_a), la_a)
             lo_a = lon_near(g_in, g_a, lo_a)
             a = d_in
             cycle
@@ -318,7 +326,7 @@ contains
       logical, intent(out) :: ok
       integer :: hr, hc, cb, ib, k
       real(dp) :: ga(3), phi, lam, sp2, cp2, qa, qb, qc, disc, q, t, t1, t2, nrm(3), dn, x, dx, la, lo, len
-      real(dp) :: x0, g0(3), rho2, dla, dlo, la0, lo0, sb, cb_
+      real(dp) :: x0, g0(3), rho2, rho0, dla, dlo, la0, lo0, sb, cb_
       logical :: by_row, side_a
       ok = .false.
       hr = -1
@@ -395,14 +403,15 @@ contains
       g0 = s + x0*l
       rho2 = g0(1)*g0(1) + g0(2)*g0(2)
       if (rho2 <= 0.0_dp) return                      ! on the axis: split at the middle
-      dla = (l(3)*rho2 - g0(3)*(g0(1)*l(1) + g0(2)*l(2)))/(sqrt(rho2)*(rho2 + g0(3)*g0(3)))
+      rho0 = sqrt(rho2)
+      dla = (l(3)*rho2 - g0(3)*(g0(1)*l(1) + g0(2)*l(2)))/(rho0*(rho2 + g0(3)*g0(3)))
       dlo = (g0(1)*l(2) - g0(2)*l(1))/rho2
       ! the crossing's own coordinate is the boundary's (to the root's rounding)
       if (by_row) then
         la0 = phi
         lo0 = lon_near(g0, ga, lo_a)
       else
-        la0 = lat_near(g0, ga, la_a)
+        la0 = lat_near(g0, rho0, ga, rho_of(ga), la_a)
         lo0 = east_of(0.0_dp, lam)
       end if
       la = la0
@@ -475,7 +484,7 @@ contains
       logical, intent(out) :: found, done
       real(dp) :: rt, rp, rtp, rlo, clo, tlo, k, x, f, fp
       real(dp) :: g(3), gn, la, lo_, ct, st_, cp, sp_, nh(3), eh(3), rh, th1, fy, fxx, t, lo2, hi2, fx2, x2, x_prev
-      real(dp) :: ga(3)
+      real(dp) :: ga(3), rho_a
       integer :: j
       found = .false.
       done = .false.
@@ -490,15 +499,16 @@ contains
       k = (1.0_dp/rlo + 2.0_dp*rtp/(rlo*rlo*clo) + rt*(2.0_dp + tlo)/rlo**2 + 2.0_dp*rp/(rlo*clo)**2) &
           *1.001_dp + 1.0e-12_dp
       ga = s + a*l
+      rho_a = rho_of(ga)
       x = a
       x_prev = a
       do j = 1, 200
         ! height and its slope at x, within this cell's patch
         g = s + x*l
         gn = length(g)
-        la = lat_near(g, ga, la_a)
+        rh = rho_of(g)                                 ! > 0: the poles are left to the subdivision
+        la = lat_near(g, rh, ga, rho_a, la_a)
         lo_ = lon_near(g, ga, lo_a)
-        rh = sqrt(g(1)*g(1) + g(2)*g(2))               ! > 0: the poles are left to the subdivision
         ct = rh/gn; st_ = g(3)/gn; cp = g(1)/rh; sp_ = g(2)/rh
         nh = [-st_*cp, -st_*sp_, ct]                   ! local north
         eh = [-sp_, cp, 0.0_dp]                        ! local east
@@ -597,7 +607,7 @@ contains
         dstar = a + (ga(3)*gl - l(3)*dot_product(ga, ga))/den
         if (dstar > a .and. dstar < b) then
           gs = s + dstar*l
-          la_s = lat_near(gs, ga, la_a)
+          la_s = lat_near(gs, rho_of(gs), ga, rho_of(ga), la_a)
           lat_lo = min(lat_lo, la_s)
           lat_hi = max(lat_hi, la_s)
         end if
@@ -716,7 +726,6 @@ contains
       else
         lat0 = -90.0_dp + (c - 0.5_dp)/dem%ppd; lat1 = lat0 + 1.0_dp/dem%ppd; ky = dem%ppd*deg
       end if
-      kx = dem%ppd*deg
       lon0 = (i + 0.5_dp)/dem%ppd*rad
       call dem_cell_nodes(dem, i, c, rc, st)                   ! eqs. 2-5
       if (st /= stat_ok) stat = st

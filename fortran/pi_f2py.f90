@@ -73,7 +73,6 @@ subroutine core_map_poles(nbytes, bytes, itemsize, ppd, rmax, f, re, poles, stat
   use, intrinsic :: iso_c_binding, only: c_loc, c_int8_t
   use pi_kinds, only: dp, i8
   use pi_dem, only: dem_t, dem_attach_map
-  use pi_status, only: stat_dem_size
   implicit none
   integer(i8), intent(in) :: nbytes
   integer(c_int8_t), intent(in), target :: bytes(nbytes)
@@ -83,11 +82,7 @@ subroutine core_map_poles(nbytes, bytes, itemsize, ppd, rmax, f, re, poles, stat
   integer, intent(out) :: stat
   type(dem_t) :: dem
   poles = 0.0_dp
-  if (ppd < 1 .or. nbytes /= 64800_i8*ppd*ppd*itemsize) then
-    stat = stat_dem_size
-    return
-  end if
-  call dem_attach_map(c_loc(bytes), itemsize, ppd, rmax, f, re, dem, stat)
+  call dem_attach_map(c_loc(bytes), nbytes, itemsize, ppd, rmax, f, re, dem, stat)
   poles = [dem%pole_south, dem%pole_north]
 end subroutine core_map_poles
 
@@ -101,7 +96,7 @@ subroutine core_intersect_mapped(nbytes, bytes, itemsize, ppd, rmax, f, re, pole
   use, intrinsic :: iso_c_binding, only: c_loc, c_int8_t
   use pi_kinds, only: dp, sp, i8
   use pi_dem, only: dem_t, dem_attach_map
-  use pi_status, only: stat_ok, stat_dem_size
+  use pi_status, only: stat_ok
   use pi_intersect, only: intersect_packed
   use pi_exact, only: pyramid_t, pyramid_attach
   implicit none
@@ -117,12 +112,8 @@ subroutine core_intersect_mapped(nbytes, bytes, itemsize, ppd, rmax, f, re, pole
   type(pyramid_t) :: pyr
   p = 0.0_dp; t = 0.0_dp; tc = 0.0_dp; sc = 0.0_dp; scal = 0.0_dp
   status = -1; nsteps = 0
-  if (ppd < 1 .or. nbytes /= 64800_i8*ppd*ppd*itemsize) then
-    stat = stat_dem_size
-    return
-  end if
   call pyramid_attach(pyr_data, pyr_meta, pyr)
-  call dem_attach_map(c_loc(bytes), itemsize, ppd, rmax, f, re, dem, stat, poles)
+  call dem_attach_map(c_loc(bytes), nbytes, itemsize, ppd, rmax, f, re, dem, stat, poles)
   if (stat /= stat_ok) return
   call intersect_packed(dem, n, s, l, step_mode, tangent_mode, p, t, tc, sc, scal, status, nsteps, stat, &
                         threads, method, pyr)
