@@ -26,7 +26,7 @@ module pi_dem
   implicit none
   private
 
-  public :: dem_t, dem_read_header, dem_open, dem_attach, dem_attach_map, dem_close, dem_radius, &
+  public :: dem_t, dem_header_t, dem_read_header, dem_open, dem_attach, dem_attach_map, dem_close, dem_radius, &
             dem_cell_nodes, dem_polar_mean, dem_paths
 
   !> An open DEM (either storage mode).
@@ -57,6 +57,28 @@ module pi_dem
     real(dp), pointer, contiguous :: map_dp(:, :) => null()
   end type dem_t
 
+  !> Largest ppd accepted: 360*ppd columns must index in default integers
+  !> (the file would hold 6.5e16 records).
+  integer, parameter, public :: max_ppd = 1000000
+  !> The range of radii (and of rmax) accepted, in any unit: squares and
+  !> products of lengths, and far spacecraft up to 1e15 rmax, then stay far
+  !> from overflow and underflow (docs/paper-notes.md, note 19).
+  real(dp), parameter, public :: radius_min = 1.0e-100_dp, radius_max = 1.0e100_dp
+  !> Largest |latitude| (radians) dem_radius accepts: pi/2 and a few ulps.
+  real(dp), parameter :: lat_limit = 0.5_dp*pi*(1.0_dp + 4.0_dp*epsilon(1.0_dp))
+
+  !> The header values of a DEM file pair (Table 1 plus the extensions), as a
+  !> caller that has parsed and checked the `.hdr` itself hands them to
+  !> dem_open (the Python layer: one parser for both storage modes).
+  type :: dem_header_t
+    !> Pixels per degree; bytes per record (4 or 8).
+    integer :: ppd = 0, itemsize = 4
+    !> Maximum radius, flattening, equatorial radius (Table 1).
+    real(dp) :: rmax = 0.0_dp, f = 0.0_dp, re = 1.0_dp
+    !> True when the file's byte order is not the machine's.
+    logical :: swap = .false.
+  end type dem_header_t
+
 contains
 
   !> Names of the `.hdr` and `.dem` files of a DEM given as `NAME`, `NAME.hdr`
@@ -75,10 +97,19 @@ contains
 
   !> Read and check a `.hdr` file (Table 1 plus optional `key = value` lines).
   !>
-  !> The first four non-comment lines hold ppd, rmax, f, re; text after the
-  !> value is a comment; blank lines and lines starting `#` or `!` are skipped.
-  !> Later lines may be `dtype = float32|float64` and
-  !> `byteorder = little|big`; any other key is an error.
+  !> The grammar is the one `planet_intersect.dem.read_header` implements, and
+  !> tests feed both the same headers (docs/dem-format.md):
+  !>   * the file is bytes, at most 1,000,000 of them; lines end at LF, CR or
+  !>     CRLF; space and tab are the only white space, stripped at both ends;
+  !>   * blank lines and lines starting `#` or `!` are skipped;
+  !>   * the first four other lines hold ppd, rmax, f, re: the first token (up to
+  !>     a space or tab) is the value, the rest of the line a comment; ppd is
+  !>     `[+-]digits` (at most 9 digits), the reals `[+-]` then digits with an
+  !>     optional point (or a point and digits) and an optional `e`/`E` exponent
+  !>     of one to three digits;
+  !>   * later lines are `key = value` (key compared without case):
+  !>     `dtype = float32|float64`, `byteorder = little|big`; anything else is
+  !>     an error.
   !>
   !> stat: stat_hdr_open, stat_hdr_value, stat_hdr_key, stat_bad_ppd,
   !> stat_bad_rmax, stat_bad_f, stat_bad_re.
@@ -88,9 +119,8 @@ contains
     real(dp), intent(out) :: rmax, f, re
     logical, intent(out) :: swap
     integer, intent(out) :: stat
-    character(len=1024) :: line
-    character(len=:), allocatable :: key, val, text
-    integer :: fd, ios, nval, k, pos, eol
+    character(len=:), allocatable :: text, line, key, val, tok
+    integer :: fd, ios, nval, k, pos, eol, n
     integer(i8) :: nbytes
     integer(i1), allocatable :: raw(:)
     logical :: big, ok
@@ -115,31 +145,32 @@ contains
       stat = stat_hdr_open
       return
     end if
-    allocate(character(len=size(raw)) :: text)
-    text = transfer(raw, text)
+    n = size(raw)
+    allocate(character(len=n) :: text)
+    if (n > 0) text = transfer(raw, text)
     nval = 0
     pos = 1
-    do while (pos <= len(text))
-      eol = index(text(pos:), achar(10))
-      if (eol == 0) eol = len(text) - pos + 2
-      line = text(pos:pos + eol - 2)
+    do while (pos <= n)
+      ! one line: up to the next LF or CR (a CRLF leaves an empty line, skipped)
+      eol = scan(text(pos:), achar(10)//achar(13))
+      if (eol == 0) eol = n - pos + 2
+      line = strip(text(pos:pos + eol - 2))
       pos = pos + eol
-      k = index(line, achar(13))          ! tolerate CRLF line ends
-      if (k > 0) line(k:) = ' '
-      line = adjustl(line)
-      if (len_trim(line) == 0) cycle
+      if (len(line) == 0) cycle
       if (line(1:1) == '#' .or. line(1:1) == '!') cycle
       if (nval < 4) then
         nval = nval + 1
+        tok = first_word(line)
+        ios = 1
         select case (nval)
         case (1)
-          read(line, *, iostat=ios) ppd
+          if (is_int_token(tok)) read(tok, *, iostat=ios) ppd
         case (2)
-          read(line, *, iostat=ios) rmax
+          if (is_real_token(tok)) read(tok, *, iostat=ios) rmax
         case (3)
-          read(line, *, iostat=ios) f
+          if (is_real_token(tok)) read(tok, *, iostat=ios) f
         case (4)
-          read(line, *, iostat=ios) re
+          if (is_real_token(tok)) read(tok, *, iostat=ios) re
         end select
         if (ios /= 0) then
           stat = stat_hdr_value
@@ -151,31 +182,20 @@ contains
           stat = stat_hdr_key
           exit
         end if
-        key = lower(trim(adjustl(line(1:k-1))))
-        val = first_word(line(k+1:))
-        select case (key)
-        case ('dtype')
-          select case (lower(val))
-          case ('float32')
-            itemsize = 4
-          case ('float64')
-            itemsize = 8
-          case default
-            stat = stat_hdr_key
-          end select
-        case ('byteorder')
-          select case (lower(val))
-          case ('little')
-            big = .false.
-          case ('big')
-            big = .true.
-          case default
-            stat = stat_hdr_key
-          end select
-        case default
+        key = lower(strip(line(1:k-1)))
+        val = lower(first_word(line(k+1:)))
+        if (key == 'dtype' .and. val == 'float32') then
+          itemsize = 4
+        else if (key == 'dtype' .and. val == 'float64') then
+          itemsize = 8
+        else if (key == 'byteorder' .and. val == 'little') then
+          big = .false.
+        else if (key == 'byteorder' .and. val == 'big') then
+          big = .true.
+        else
           stat = stat_hdr_key
-        end select
-        if (stat /= stat_ok) exit
+          exit
+        end if
       end if
     end do
     if (stat /= stat_ok) return
@@ -197,7 +217,7 @@ contains
   !>
   !> stat: any code of dem_read_header, stat_dem_open, stat_dem_size,
   !> stat_dem_read, stat_bad_radii, stat_bad_rmax, stat_bad_mode.
-  subroutine dem_open(name, read_mode, dem, stat, use_map)
+  subroutine dem_open(name, read_mode, dem, stat, use_map, header)
     character(len=*), intent(in) :: name
     integer, intent(in) :: read_mode
     type(dem_t), intent(out) :: dem
@@ -205,6 +225,9 @@ contains
     !> read_mode 1 only: read records from a memory map instead of pread
     !> (ignored when the file's byte order is not the machine's).
     logical, intent(in), optional :: use_map
+    !> The header's values, parsed and checked by the caller: given, the `.hdr`
+    !> is not read again (they are checked with header_stat all the same).
+    type(dem_header_t), intent(in), optional :: header
     character(len=:), allocatable :: hdr, demfile
     integer(i8) :: fsize
     integer :: j
@@ -215,7 +238,14 @@ contains
       return
     end if
     call dem_paths(name, hdr, demfile)
-    call dem_read_header(hdr, dem%ppd, dem%rmax, dem%f, dem%re, dem%itemsize, dem%swap, stat)
+    if (present(header)) then
+      stat = header_stat(header%ppd, header%rmax, header%f, header%re)
+      if (stat == stat_ok .and. header%itemsize /= 4 .and. header%itemsize /= 8) stat = stat_hdr_key
+      dem%ppd = header%ppd; dem%rmax = header%rmax; dem%f = header%f; dem%re = header%re
+      dem%itemsize = header%itemsize; dem%swap = header%swap
+    else
+      call dem_read_header(hdr, dem%ppd, dem%rmax, dem%f, dem%re, dem%itemsize, dem%swap, stat)
+    end if
     if (stat /= stat_ok) return
     dem%nlon = 360*dem%ppd
     dem%nlat = 180*dem%ppd
@@ -360,20 +390,20 @@ contains
     r = dem_polar_mean(row)
   end subroutine row_mean
 
-  !> The status of a grid's header values (Table 1): stat_ok when ppd >= 1,
-  !> rmax is finite and > 0, 0 <= f < 1 and re is finite and > 0; else the first
+  !> The status of a grid's header values (Table 1): stat_ok when 1 <= ppd <= max_ppd,
+  !> rmax and re are in [radius_min, radius_max] and 0 <= f < 1; else the first
   !> failing one's code (stat_bad_ppd, stat_bad_rmax, stat_bad_f, stat_bad_re).
   pure integer function header_stat(ppd, rmax, f, re) result(stat)
     integer, intent(in) :: ppd
     real(dp), intent(in) :: rmax, f, re
     stat = stat_ok
-    if (ppd < 1) then
+    if (ppd < 1 .or. ppd > max_ppd) then
       stat = stat_bad_ppd
-    else if (.not. ieee_is_finite(rmax) .or. rmax <= 0.0_dp) then
+    else if (.not. (rmax >= radius_min .and. rmax <= radius_max)) then
       stat = stat_bad_rmax
     else if (.not. ieee_is_finite(f) .or. f < 0.0_dp .or. f >= 1.0_dp) then
       stat = stat_bad_f
-    else if (.not. ieee_is_finite(re) .or. re <= 0.0_dp) then
+    else if (.not. (re >= radius_min .and. re <= radius_max)) then
       stat = stat_bad_re
     end if
   end function header_stat
@@ -429,8 +459,10 @@ contains
   !> is then measured over that half-pixel gap, so the surface is continuous
   !> and single-valued at the pole (docs/paper-notes.md). Eqs. 10-12 blend.
   !>
-  !> stat: stat_ok; in read_mode 1 stat_dem_read, stat_bad_radii or
-  !> stat_bad_rmax when a record cannot be read or is invalid (r is then 0).
+  !> stat: stat_ok; stat_bad_coord (r = 0) when lon is not finite or |lat|
+  !> exceeds pi/2 (by more than rounding); in read_mode 1 stat_dem_read,
+  !> stat_bad_radii or stat_bad_rmax when a record cannot be read or is
+  !> invalid (r is then 0).
   subroutine dem_radius(dem, lat, lon, r, stat)
     type(dem_t), intent(in) :: dem
     real(dp), intent(in) :: lat, lon
@@ -440,9 +472,15 @@ contains
     integer :: i1, i2, j1
 
     stat = stat_ok
+    ! a non-finite coordinate (from a ray that overflowed, say) is a status, never an index
+    if (.not. (ieee_is_finite(lon) .and. abs(lat) <= lat_limit)) then
+      r = 0.0_dp
+      stat = stat_bad_coord
+      return
+    end if
     ! eq. 6: fractional column offset from the first column centre, in pixels
     x = lon_diff(rad*0.5_dp/dem%ppd, lon) * deg * dem%ppd
-    i1 = int(x) + 1                       ! x >= 0, so int() is floor()
+    i1 = int(min(max(x, 0.0_dp), real(dem%nlon, dp))) + 1     ! x >= 0, so int() is floor()
     if (i1 > dem%nlon) i1 = dem%nlon      ! x rounded up to nlon: stay on the last column
     fx = x - real(i1 - 1, dp)             ! m_pix * delta-phi of eqs. 10-11
     i2 = i1 + 1                           ! eq. 7
@@ -486,7 +524,8 @@ contains
   !> on row c + 1, west first. The poles carry the mean radius of the adjacent
   !> row (section 2.2).
   !>
-  !> stat: stat_ok; in read_mode 1 as dem_radius (r is then 0).
+  !> stat: stat_ok; stat_bad_coord for i or c outside those ranges; in
+  !> read_mode 1 as dem_radius (r is then 0).
   subroutine dem_cell_nodes(dem, i, c, r, stat)
     type(dem_t), intent(in) :: dem
     integer, intent(in) :: i, c
@@ -494,6 +533,11 @@ contains
     integer, intent(out) :: stat
     integer :: i1, i2
     stat = stat_ok
+    if (i < 0 .or. i >= dem%nlon .or. c < 0 .or. c > dem%nlat) then
+      r = 0.0_dp                          ! never an index outside the grid
+      stat = stat_bad_coord
+      return
+    end if
     i1 = i + 1
     i2 = i + 2
     if (i2 > dem%nlon) i2 = i2 - dem%nlon
@@ -525,10 +569,10 @@ contains
       value = dem%radii(i, j)
     else if (associated(dem%map_sp)) then
       value = real(dem%map_sp(i, j), dp)
-      if (.not. (value > 0.0_dp .and. value <= dem%rmax)) stat = stat_bad_radii
+      if (.not. (value >= radius_min .and. value <= dem%rmax)) stat = stat_bad_radii
     else if (associated(dem%map_dp)) then
       value = dem%map_dp(i, j)
-      if (.not. (value > 0.0_dp .and. value <= dem%rmax)) stat = stat_bad_radii
+      if (.not. (value >= radius_min .and. value <= dem%rmax)) stat = stat_bad_radii
     else
       call read_records(dem, int(j - 1, i8)*dem%nlon + i, 1, buf, st)   ! eq. 1
       value = buf(1)
@@ -567,7 +611,7 @@ contains
       values = transfer(bytes, 0.0_dp, n)
     end if
     do k = 1, n
-      if (.not. ieee_is_finite(values(k)) .or. values(k) <= 0.0_dp) then
+      if (.not. (values(k) >= radius_min .and. values(k) <= radius_max)) then
         stat = stat_bad_radii
       else if (values(k) > dem%rmax) then
         stat = stat_bad_rmax
@@ -591,15 +635,79 @@ contains
     end do
   end function lower
 
+  !> s without leading and trailing spaces and tabs (the header's only white space).
+  pure function strip(s) result(t)
+    character(len=*), intent(in) :: s
+    character(len=:), allocatable :: t
+    integer :: i, j
+    i = verify(s, ' '//achar(9))
+    if (i == 0) then
+      t = ''
+      return
+    end if
+    j = verify(s, ' '//achar(9), back=.true.)
+    t = s(i:j)
+  end function strip
+
+  !> The first token of s: after leading white space, up to a space or tab.
   pure function first_word(s) result(w)
     character(len=*), intent(in) :: s
-    character(len=:), allocatable :: w
-    character(len=len(s)) :: t
+    character(len=:), allocatable :: w, t
     integer :: k
-    t = adjustl(s)
+    t = strip(s)
     k = scan(t, ' '//achar(9))
     if (k == 0) k = len(t) + 1
     w = t(1:k-1)
   end function first_word
+
+  !> True when tok is `[+-]digits` with 1 to 9 digits.
+  pure logical function is_int_token(tok) result(ok)
+    character(len=*), intent(in) :: tok
+    integer :: i0
+    i0 = 1
+    if (len(tok) > 0) then
+      if (tok(1:1) == '+' .or. tok(1:1) == '-') i0 = 2
+    end if
+    ok = len(tok) - i0 + 1 >= 1 .and. len(tok) - i0 + 1 <= 9
+    if (ok) ok = verify(tok(i0:), '0123456789') == 0
+  end function is_int_token
+
+  !> True when tok is a decimal real: `[+-]`, then digits with an optional
+  !> point and digits, or a point and digits, then an optional exponent
+  !> `e`/`E`, `[+-]`, one to three digits.
+  pure logical function is_real_token(tok) result(ok)
+    character(len=*), intent(in) :: tok
+    integer :: i, n, nd
+    n = len(tok)
+    i = 1
+    ok = .false.
+    if (n == 0) return
+    if (tok(1:1) == '+' .or. tok(1:1) == '-') i = 2
+    nd = 0
+    do while (i <= n)
+      if (verify(tok(i:i), '0123456789') /= 0) exit
+      i = i + 1; nd = nd + 1
+    end do
+    if (i <= n) then
+      if (tok(i:i) == '.') then
+        i = i + 1
+        do while (i <= n)
+          if (verify(tok(i:i), '0123456789') /= 0) exit
+          i = i + 1; nd = nd + 1
+        end do
+      end if
+    end if
+    if (nd == 0) return
+    if (i <= n) then
+      if (tok(i:i) /= 'e' .and. tok(i:i) /= 'E') return
+      i = i + 1
+      if (i <= n) then
+        if (tok(i:i) == '+' .or. tok(i:i) == '-') i = i + 1
+      end if
+      if (i > n .or. n - i + 1 > 3) return
+      if (verify(tok(i:), '0123456789') /= 0) return
+    end if
+    ok = .true.
+  end function is_real_token
 
 end module pi_dem

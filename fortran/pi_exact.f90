@@ -48,6 +48,10 @@ module pi_exact
 
   !> Stack depth of the subdivision (segments halve each level).
   integer, parameter :: max_depth = 200
+  !> Most segments one ray may examine (its bound on any input; rays at 128 ppd
+  !> take ~8 on average and a few hundred at most): past it the search stops
+  !> with stat_unresolved (docs/paper-notes.md, note 19).
+  integer, parameter :: max_nodes = 2000000
   !> A segment is shortened to where the ray enters the sphere of its box's
   !> highest radius when that cuts off at least this fraction of it (else it is
   !> split): 0.3 was the fastest of 0-0.7 on the 128 ppd limb scan.
@@ -238,6 +242,10 @@ contains
       la_b = stack(2, top)
       lo_b = stack(3, top)
       nodes = nodes + 1
+      if (nodes > max_nodes .or. .not. (b >= a)) then
+        stat = stat_unresolved               ! budget spent, or NaN: never a guessed answer
+        return
+      end if
       call exclude(a, b, excluded)
       if (stat /= stat_ok) return
       if (excluded) then

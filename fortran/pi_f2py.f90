@@ -39,17 +39,22 @@ end subroutine core_intersect_grid
 
 !> Intersect n rays with the DEM file pair `path` (NAME, NAME.hdr or NAME.dem)
 !> read by Fortran in dem_read_mode 0 (whole grid) or 1 (record by record).
-subroutine core_intersect_file(path, read_mode, n, s, l, step_mode, tangent_mode, threads, &
-                               method, use_map, npyr, pyr_data, nlev, pyr_meta, &
+!> The header values (ppd, rmax, f, re, itemsize, swap = 1 when the file's
+!> byte order is not the machine's) come from the caller, which parsed and
+!> checked the `.hdr` (one parser for both storage modes: issue 10).
+subroutine core_intersect_file(path, read_mode, ppd, rmax, f, re, itemsize, swap, n, s, l, step_mode, &
+                               tangent_mode, threads, method, use_map, npyr, pyr_data, nlev, pyr_meta, &
                                p, t, tc, sc, scal, status, nsteps, stat)
   use pi_kinds, only: dp, sp
-  use pi_dem, only: dem_t, dem_open, dem_close
+  use pi_dem, only: dem_t, dem_header_t, dem_open, dem_close
   use pi_status, only: stat_ok
   use pi_intersect, only: intersect_packed
   use pi_exact, only: pyramid_t, pyramid_attach
   implicit none
   character(len=*), intent(in) :: path
-  integer, intent(in) :: read_mode, n, step_mode, tangent_mode, threads, method, use_map, npyr, nlev
+  integer, intent(in) :: read_mode, ppd, itemsize, swap
+  real(dp), intent(in) :: rmax, f, re
+  integer, intent(in) :: n, step_mode, tangent_mode, threads, method, use_map, npyr, nlev
   real(sp), intent(in), target :: pyr_data(npyr)
   integer, intent(in) :: pyr_meta(3, nlev)
   real(dp), intent(in) :: s(3, n), l(3, n)
@@ -60,7 +65,8 @@ subroutine core_intersect_file(path, read_mode, n, s, l, step_mode, tangent_mode
   p = 0.0_dp; t = 0.0_dp; tc = 0.0_dp; sc = 0.0_dp; scal = 0.0_dp
   status = -1; nsteps = 0
   call pyramid_attach(pyr_data, pyr_meta, pyr)
-  call dem_open(path, read_mode, dem, stat, use_map=use_map /= 0)
+  call dem_open(path, read_mode, dem, stat, use_map=use_map /= 0, &
+                header=dem_header_t(ppd=ppd, itemsize=itemsize, rmax=rmax, f=f, re=re, swap=swap /= 0))
   if (stat /= stat_ok) return
   call intersect_packed(dem, n, s, l, step_mode, tangent_mode, p, t, tc, sc, scal, status, nsteps, stat, &
                         threads, method, pyr)
@@ -140,21 +146,24 @@ subroutine core_radius_grid(nlon, nlat, radii, ppd, rmax, n, lat, lon, r, stat)
   end do
 end subroutine core_radius_grid
 
-!> DEM radius (eqs. 2-12) at n points (radians) read from the file pair `path`.
-subroutine core_radius_file(path, read_mode, n, lat, lon, r, stat)
+!> DEM radius (eqs. 2-12) at n points (radians) read from the file pair `path`,
+!> with the header values from the caller (as core_intersect_file).
+subroutine core_radius_file(path, read_mode, ppd, rmax, f, re, itemsize, swap, n, lat, lon, r, stat)
   use pi_kinds, only: dp
-  use pi_dem, only: dem_t, dem_open, dem_close, dem_radius
+  use pi_dem, only: dem_t, dem_header_t, dem_open, dem_close, dem_radius
   use pi_status, only: stat_ok
   implicit none
   character(len=*), intent(in) :: path
-  integer, intent(in) :: read_mode, n
+  integer, intent(in) :: read_mode, ppd, itemsize, swap, n
+  real(dp), intent(in) :: rmax, f, re
   real(dp), intent(in) :: lat(n), lon(n)
   real(dp), intent(out) :: r(n)
   integer, intent(out) :: stat
   type(dem_t) :: dem
   integer :: k
   r = 0.0_dp
-  call dem_open(path, read_mode, dem, stat)
+  call dem_open(path, read_mode, dem, stat, &
+                header=dem_header_t(ppd=ppd, itemsize=itemsize, rmax=rmax, f=f, re=re, swap=swap /= 0))
   if (stat /= stat_ok) return
   do k = 1, n
     call dem_radius(dem, lat(k), lon(k), r(k), stat)
@@ -197,9 +206,10 @@ end subroutine core_tangent
 subroutine core_codes(codes)
   use pi_status
   implicit none
-  integer, intent(out) :: codes(22)
+  integer, intent(out) :: codes(25)
   codes = [stat_ok, stat_hdr_open, stat_hdr_value, stat_hdr_key, stat_dem_open, stat_dem_size, &
            stat_dem_read, stat_bad_ppd, stat_bad_rmax, stat_bad_f, stat_bad_re, stat_bad_radii, &
-           stat_bad_mode, stat_bad_shape, ray_hit, ray_limb, ray_away, ray_hit_unconverged, &
-           ray_bad_direction, ray_bad_position, ray_inside, ray_read_error]
+           stat_bad_mode, stat_bad_shape, stat_bad_coord, stat_unresolved, ray_hit, ray_limb, ray_away, &
+           ray_hit_unconverged, ray_bad_direction, ray_bad_position, ray_inside, ray_read_error, &
+           ray_unresolved]
 end subroutine core_codes

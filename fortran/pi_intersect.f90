@@ -26,7 +26,7 @@ module pi_intersect
   private
 
   public :: ray_result_t, intersect_ray, intersect_rays, intersect_packed, step_angle, refine_tol_rel, refine_maxit
-  public :: pyramid_t, method_stepping, method_exact, exact_tol_rel
+  public :: pyramid_t, method_stepping, method_exact, exact_tol_rel, max_steps, far_limit, far_anchor
 
   !> method values: the paper's ray stepping, or the exact first hit (pi_exact).
   integer, parameter :: method_stepping = 0, method_exact = 1
@@ -37,6 +37,20 @@ module pi_intersect
   real(dp), parameter :: refine_tol_rel = 1.0e-12_dp
   !> Iteration limit of the refinement [note 5].
   integer, parameter :: refine_maxit = 100
+  !> Most test points one ray may take (the stepping loop's bound on any input:
+  !> the paper's steps need ~600 per ray at 128 ppd); past it the ray is
+  !> ray_unresolved [note 19].
+  integer, parameter :: max_steps = 10000000
+  !> Spacecraft farther than far_limit * rmax from the centre are rejected
+  !> (ray_bad_position): the direction of a unit vector is resolved to ~1e-16,
+  !> so past this the line's position at the planet is uncertain by more than
+  !> 0.1 rmax [note 19].
+  real(dp), parameter :: far_limit = 1.0e15_dp
+  !> Spacecraft farther than far_anchor * rmax: the line is re-anchored where it
+  !> enters the r_max sphere (or at its closest approach to the centre) before
+  !> the search and the tangent point, so that distances along it stay of the
+  !> order of rmax and no step is lost to rounding [note 19].
+  real(dp), parameter :: far_anchor = 16.0_dp
 
   !> Everything computed for one ray. Lengths in the DEM's units, angles in
   !> radians, NaN where a quantity does not apply.
@@ -103,6 +117,9 @@ contains
     integer :: st, nodes
     logical :: hit, exact
     real(dp) :: d_hit
+    !> the point the line is anchored at for the search and the tangent point:
+    !> s itself, or for a far spacecraft a point on the line near the planet
+    real(dp) :: s0(3)
 
     nan = ieee_value(0.0_dp, ieee_quiet_nan)
     res%p = nan; res%lat = nan; res%lon = nan; res%radius = nan
@@ -119,7 +136,7 @@ contains
       return
     end if
     sn = norm2(s)
-    if (.not. all(ieee_is_finite(s)) .or. sn <= 0.0_dp) then
+    if (.not. all(ieee_is_finite(s)) .or. sn <= 0.0_dp .or. .not. (sn <= far_limit*dem%rmax)) then
       res%status = ray_bad_position
       return
     end if
@@ -130,7 +147,7 @@ contains
       call latlon_of(s, lat, lon)
       call dem_radius(dem, lat, lon, r_s, st)
       if (st /= stat_ok) then
-        res%status = ray_read_error
+        res%status = ray_failure(st)
         return
       end if
       if (sn < r_s) then
@@ -142,28 +159,36 @@ contains
     cos_psi0 = -dot_product(s, l)/sn              ! eq. 19
     res%t = s + sn*cos_psi0*l                     ! eq. 20
     tn = norm2(res%t)
+    s0 = s
+    if (sn > far_anchor*dem%rmax .and. cos_psi0 > 0.0_dp) s0 = res%t     ! [note 19]
 
     hit = .false.
     if (tn < dem%rmax) then
       half = sqrt(dem%rmax**2 - tn**2)
       d0 = sn*cos_psi0 - half                     ! eq. 21
       dm = sn*cos_psi0 + half                     ! eq. 22
+      if (sn > far_anchor*dem%rmax .and. d0 > 0.0_dp) then
+        ! [note 19] a far spacecraft: anchor the line where it enters r_max
+        s0 = s + d0*l
+        dm = dm - d0
+        d0 = 0.0_dp
+      end if
       exact = .false.
       if (present(method) .and. present(pyr)) exact = method == method_exact
       if (dm > 0.0_dp .and. exact) then
-        call exact_search(dem, pyr, s, l, max(d0, 0.0_dp), dm, exact_tol_rel*dem%rmax, hit, d_hit, nodes, st)
+        call exact_search(dem, pyr, s0, l, max(d0, 0.0_dp), dm, exact_tol_rel*dem%rmax, hit, d_hit, nodes, st)
         res%nsteps = nodes
         if (st /= stat_ok) then
-          res%status = ray_read_error
+          res%status = ray_failure(st)
           return
         end if
         if (hit) then
-          res%p = s + d_hit*l
+          res%p = s0 + d_hit*l
           res%status = ray_hit
         end if
       else if (dm > 0.0_dp) then
         d = max(d0, 0.0_dp)                       ! [note 3]
-        g = s + d*l                               ! eq. 24
+        g = s0 + d*l                              ! eq. 24
         gn = norm2(g)
         psi = vsep(l, -g)                         ! angle at g0 [note 1]
         call latlon_of(g, lat, lon)
@@ -173,14 +198,18 @@ contains
           denom = max(sin(pi - psi_next), sin(dalpha))          ! [note 2]
           dg = sin(dalpha)*gn/denom                             ! eq. 26
           d_next = d + dg                                       ! eq. 27
+          if (.not. (d_next > d) .or. res%nsteps >= max_steps) then
+            res%status = ray_unresolved                         ! no progress (NaN, rounding) [note 19]
+            return
+          end if
           if (d_next > dm) exit                                 ! past the search interval: no hit
-          g_next = s + d_next*l                                 ! eq. 28
+          g_next = s0 + d_next*l                                ! eq. 28
           gn_next = norm2(g_next)
           call latlon_of(g_next, lat_next, lon_next)            ! eqs. 29-30
           call dem_radius(dem, lat_next, lon_next, r_next, st)  ! eqs. 2-12
           res%nsteps = res%nsteps + 1
           if (st /= stat_ok) then
-            res%status = ray_read_error
+            res%status = ray_failure(st)
             return
           end if
           if (gn_next < r_next) then
@@ -188,13 +217,13 @@ contains
               ! the bracket's upper end needs r at g0 (eq. 34)
               call dem_radius(dem, lat, lon, rg, st)
               if (st /= stat_ok) then
-                res%status = ray_read_error
+                res%status = ray_failure(st)
                 return
               end if
             end if
             call refine(dem, l, g, gn, rg, g_next, gn_next, r_next, dg, res, st)
             if (st /= stat_ok) then
-              res%status = ray_read_error
+              res%status = ray_failure(st)
               return
             end if
             hit = .true.
@@ -229,19 +258,39 @@ contains
 
     ! limb view: tangent point on the spheroid and its altitude above the DEM
     res%status = ray_limb
-    call tangent_spheroid(s, l, dem%f, dem%re, tangent_mode, res%tc, res%sc, res%tangent_height)
+    call tangent_spheroid(s0, l, dem%f, dem%re, tangent_mode, res%tc, res%sc, res%tangent_height)
     call latlon_of(res%sc, res%tangent_lat, res%tangent_lon)    ! eqs. 59-60
     r_tc = spheroid_radius(res%tangent_lat, dem%f, dem%re)      ! eq. 61
     call dem_radius(dem, res%tangent_lat, res%tangent_lon, rg, st)
     if (st /= stat_ok) then
-      res%status = ray_read_error
+      res%status = ray_failure(st)
+      res%tc = nan; res%sc = nan; res%t = nan
+      res%tangent_lat = nan; res%tangent_lon = nan; res%tangent_height = nan
       return
     end if
     n = spheroid_normal(res%sc, dem%f)
     ! eq. 63, with n_c taken as the outward spheroid normal at sc [note 6]
     res%tangent_altitude = (r_tc - rg)*dot_product(res%sc, n)/(norm2(res%sc)*norm2(n)) &
                            + res%tangent_height
+    if (.not. has_spheroid(dem)) then
+      ! [note 20] no spheroid (f = 0, re = 1): sc and the height above it would be
+      ! measured from a unit sphere; the altitude above the DEM (|tc| - r) stands
+      res%sc = nan
+      res%tangent_height = nan
+    end if
   end subroutine intersect_ray
+
+  !> The per-ray code for a routine status met on a ray's path: a coordinate or
+  !> search that could not be resolved is ray_unresolved, a record that could
+  !> not be read or is invalid ray_read_error.
+  pure integer function ray_failure(st) result(code)
+    integer, intent(in) :: st
+    if (st == stat_bad_coord .or. st == stat_unresolved) then
+      code = ray_unresolved
+    else
+      code = ray_read_error
+    end if
+  end function ray_failure
 
   !> Refine a bracketed crossing by eqs. 31-41.
   !>

@@ -12,10 +12,11 @@ module pi_status
   ! routine-level codes
   public :: stat_ok, stat_hdr_open, stat_hdr_value, stat_hdr_key, stat_dem_open, &
             stat_dem_size, stat_dem_read, stat_bad_ppd, stat_bad_rmax, stat_bad_f, &
-            stat_bad_re, stat_bad_radii, stat_bad_mode, stat_bad_shape
+            stat_bad_re, stat_bad_radii, stat_bad_mode, stat_bad_shape, stat_bad_coord, &
+            stat_unresolved
   ! per-ray codes
   public :: ray_hit, ray_limb, ray_away, ray_hit_unconverged, ray_bad_direction, &
-            ray_bad_position, ray_inside, ray_read_error
+            ray_bad_position, ray_inside, ray_read_error, ray_unresolved
 
   !> Success.
   integer, parameter :: stat_ok = 0
@@ -45,6 +46,13 @@ module pi_status
   integer, parameter :: stat_bad_mode = 12
   !> Array dimensions disagree with `ppd`.
   integer, parameter :: stat_bad_shape = 13
+  !> A latitude or longitude handed to the DEM interpolation is not finite, or
+  !> the latitude lies outside [-pi/2, pi/2] (never used as an array index).
+  integer, parameter :: stat_bad_coord = 14
+  !> A search could not be resolved in floating point: a non-finite
+  !> intermediate value, no progress along the ray, or its step/segment budget
+  !> exhausted (pi_intersect::max_steps, pi_exact::max_nodes).
+  integer, parameter :: stat_unresolved = 15
 
   !> The ray hits the DEM surface; `p` and its properties are set.
   integer, parameter :: ray_hit = 0
@@ -63,4 +71,7 @@ module pi_status
   integer, parameter :: ray_inside = 6
   !> A DEM record could not be read (dem_read_mode = 1) or is invalid.
   integer, parameter :: ray_read_error = 7
+  !> The ray could not be resolved in floating point (stat_unresolved or
+  !> stat_bad_coord on its path): no result is given, never a guessed one.
+  integer, parameter :: ray_unresolved = 8
 end module pi_status

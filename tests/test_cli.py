@@ -59,7 +59,7 @@ def test_run_subcommand(tmp_path, rough):
                 "--dem-read-mode", "1", "--io", "mmap")
     assert r.returncode == 0 and "3 rays: 1 hit, 1 limb, 1 away" in r.stdout, r.stderr
     r = run_cli("run", hdr, rays, "--threads", "-2")
-    assert r.returncode == 2 and "threads must be a non-negative integer" in r.stderr
+    assert r.returncode == 2 and "threads must be an integer in 0..1024" in r.stderr
     xr = pytest.importorskip("xarray")
     ds = xr.open_dataset(tmp_path / "o" / "run-001" / "results.nc", engine="h5netcdf")
     res = pi.intersect(pi.DEM.read(hdr), [5000, 0, 0], [[-1, 0, 0], [1, 0, 0], [-1, 1, 0]])
@@ -69,7 +69,7 @@ def test_run_subcommand(tmp_path, rough):
 @pytest.mark.parametrize("args, message", [
     (["run", "nothere.hdr", "rays.txt"], "nothere.hdr: no such file"),
     (["run", "DEM", "missing_rays.txt"], "rays file missing_rays.txt: no such file"),
-    (["run", "DEM", "bad_rays.txt"], "expected 6 columns"),
+    (["run", "DEM", "bad_rays.txt"], "bad_rays.txt, line 1: expected 6 numbers"),
 ])
 def test_errors_are_one_line(tmp_path, rough, capsys, monkeypatch, args, message):
     rough.write(tmp_path / "DEM")

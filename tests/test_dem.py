@@ -32,7 +32,7 @@ def test_write_read_round_trip(tmp_path, rough, dtype, byteorder):
     assert itemsize == np.dtype(dtype).itemsize and swap == (byteorder == "big")
     # and the Fortran mode-1 reader the same radii
     lat, lon = np.array([-89.9, -30.2, 0.0, 45.5, 89.95]), np.array([0.1, 359.9, 180.0, 12.3, 200.0])
-    r1, st = _core.core_radius_file(str(hdr), 1, np.radians(lat), np.radians(lon))
+    r1, st = _core.core_radius_file(str(hdr), 1, *back.header_args(), np.radians(lat), np.radians(lon))
     assert st == 0
     np.testing.assert_array_equal(r1, back.radius(lat, lon))
 

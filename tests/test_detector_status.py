@@ -32,10 +32,11 @@ def test_detector_los_rejects_parallel_q():
 
 def test_status_table_matches_compiled_codes():
     codes = _core.core_codes()
-    assert list(codes[:14]) == sorted(STAT_MESSAGES)
+    assert list(codes[:16]) == sorted(STAT_MESSAGES)
     ray = [pi.RayStatus.HIT, pi.RayStatus.LIMB, pi.RayStatus.AWAY, pi.RayStatus.HIT_UNCONVERGED,
-           pi.RayStatus.BAD_DIRECTION, pi.RayStatus.BAD_POSITION, pi.RayStatus.INSIDE, pi.RayStatus.READ_ERROR]
-    assert list(codes[14:]) == ray
+           pi.RayStatus.BAD_DIRECTION, pi.RayStatus.BAD_POSITION, pi.RayStatus.INSIDE, pi.RayStatus.READ_ERROR,
+           pi.RayStatus.UNRESOLVED]
+    assert list(codes[16:]) == ray
     assert sorted(pi.RAY_STATUS) == ray
 
 

@@ -65,7 +65,7 @@ def test_openmp_thread_counts_bit_identical(rough_file, dem_read_mode):
 
 @pytest.mark.parametrize("bad", [-1, 1.5, "2", True])
 def test_bad_thread_count(rough, bad):
-    with pytest.raises(ValueError, match="threads must be a non-negative integer"):
+    with pytest.raises(ValueError, match="threads must be an integer in 0..1024"):
         pi.intersect(rough, [5000.0, 0, 0], [-1.0, 0, 0], threads=bad)
 
 
@@ -102,7 +102,7 @@ def test_mmap_reads_the_dems_own_map(tmp_path, rough):
 
 
 def test_bad_io(rough_file):
-    with pytest.raises(ValueError, match="io must be 'records' or 'mmap'"):
+    with pytest.raises(ValueError, match="io must be one of 'records', 'mmap', got 'cache'"):
         pi.intersect(rough_file, [5000.0, 0, 0], [-1.0, 0, 0], dem_read_mode=1, io="cache")
 
 

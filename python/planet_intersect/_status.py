@@ -29,6 +29,8 @@ STAT_MESSAGES = {
     11: "a radius is NaN, infinite or not positive",
     12: "step_mode, dem_read_mode or tangent mode out of range",
     13: "the radii array shape disagrees with ppd",
+    14: "a latitude or longitude is not finite, or a latitude is outside [-90, 90] degrees",
+    15: "the computation could not be resolved in floating point",
 }
 
 
@@ -43,6 +45,7 @@ class RayStatus:
     BAD_POSITION = 5  #: spacecraft position non-finite or at the centre
     INSIDE = 6  #: spacecraft below the DEM surface
     READ_ERROR = 7  #: a DEM record could not be read or is invalid
+    UNRESOLVED = 8  #: the ray could not be resolved in floating point; no result given
 
 
 #: per-ray code -> short description (documented in docs/status-codes.md)
@@ -55,6 +58,7 @@ RAY_STATUS = {
     RayStatus.BAD_POSITION: "invalid spacecraft position",
     RayStatus.INSIDE: "spacecraft inside the surface",
     RayStatus.READ_ERROR: "DEM record unreadable or invalid",
+    RayStatus.UNRESOLVED: "not resolved in floating point (no result)",
 }
 
 
@@ -63,6 +67,6 @@ def raise_for_stat(stat: int, where: str) -> None:
     if stat == 0:
         return
     message = STAT_MESSAGES.get(int(stat), f"unknown status {stat}")
-    if stat == 12:
+    if stat in (12, 14):
         raise ValueError(f"{where}: {message}")
     raise DEMError(f"{where}: {message} (status {stat})")

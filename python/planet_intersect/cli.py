@@ -13,8 +13,11 @@ Errors print one line on standard error and exit with status 2.
 from __future__ import annotations
 
 import argparse
+import re
+import shutil
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +31,12 @@ class CLIError(Exception):
 
 def _new_run_dir(base: Path) -> Path:
     """A fresh numbered folder under ``base`` (earlier runs are never overwritten)."""
-    base.mkdir(parents=True, exist_ok=True)
+    if base.exists() and not base.is_dir():
+        raise CLIError(f"--out {base}: exists and is not a folder")
+    try:
+        base.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CLIError(f"--out {base}: cannot make the folder ({exc.strerror})") from None
     k = 1
     while True:
         d = base / f"run-{k:03d}"
@@ -37,6 +45,27 @@ def _new_run_dir(base: Path) -> Path:
             return d
         except FileExistsError:
             k += 1
+
+
+@contextmanager
+def _run_dir(base: Path):
+    """A new run folder that is removed again, with whatever was written into it,
+    when the work in it fails: nothing is left half-written."""
+    out = _new_run_dir(base)
+    try:
+        yield out
+    except BaseException:
+        shutil.rmtree(out, ignore_errors=True)
+        raise
+
+
+def _require(module: str, extra: str, what: str) -> None:
+    """Import ``module`` or stop with one line naming the extra that provides it."""
+    try:
+        __import__(module)
+    except ImportError:
+        raise CLIError(f"{what} needs the Python package {module!r}, which is not installed: "
+                       f"pip install 'planet-intersect[{extra}]'") from None
 
 
 def write_csv(path: Path, result) -> None:
@@ -49,10 +78,18 @@ def write_csv(path: Path, result) -> None:
 
 
 def _demo(args) -> int:
+    if not 1 <= args.ppd <= 64:
+        raise CLIError(f"--ppd must be in 1..64, got {args.ppd}")
+    if not 1 <= args.pixels <= 4001:
+        raise CLIError(f"--pixels must be in 1..4001, got {args.pixels}")
+    with _run_dir(Path(args.out)) as out:
+        return _demo_in(args, out)
+
+
+def _demo_in(args, out: Path) -> int:
     from . import intersect
     from .synthetic import MARS_MEAN_RADIUS, mars_like_dem, oblique_scene
 
-    out = _new_run_dir(Path(args.out))
     t0 = time.perf_counter()
     dem = mars_like_dem(ppd=args.ppd)
     t1 = time.perf_counter()
@@ -61,6 +98,7 @@ def _demo(args) -> int:
     t2 = time.perf_counter()
 
     hit = res.hit
+    nan_ok = np.seterr(all="ignore")                 # an all-miss view gives nanmin of nothing
     lines = [
         "planet-intersect demo: synthetic Mars (spheroid + 21 km shield volcano + rough terrain),",
         f"  DEM {dem.ppd} pixels/degree ({dem.nlat} x {dem.nlon}), rmax {dem.rmax:.3f} km, built in {t1 - t0:.2f} s",
@@ -75,6 +113,7 @@ def _demo(args) -> int:
         lines.append(f"  limb: tangent altitude above the local surface {np.nanmin(res.tangent_altitude):.1f} .. "
                      f"{np.nanmax(res.tangent_altitude):.1f} km")
     lines.append(f"  mean test points per ray: {res.nsteps.mean():.1f}")
+    np.seterr(**nan_ok)
     csv = out / "demo_pixels.csv"
     write_csv(csv, res)
     lines.append(f"  wrote {csv}")
@@ -116,16 +155,37 @@ def _plot_demo(path: Path, res, npix: int) -> bool:
     return True
 
 
-def _read_rays(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    if not path.is_file():
-        raise CLIError(f"rays file {path}: no such file")
+def _read_rays(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rays of a text file, one per line (sx sy sz lx ly lz; ``#`` starts a
+    comment): s (N, 3), l (N, 3) and the file's line number of each ray."""
+    from .dem import regular_file
+
     try:
-        data = np.loadtxt(path, comments="#", ndmin=2)
-    except ValueError as exc:
-        raise CLIError(f"rays file {path}: {exc}") from None
-    if data.shape[1] != 6:
-        raise CLIError(f"rays file {path}: expected 6 columns (sx sy sz lx ly lz), got {data.shape[1]}")
-    return data[:, :3], data[:, 3:]
+        path = regular_file(path, "rays file")
+    except (OSError, ValueError) as exc:
+        raise CLIError(str(exc)) from None
+    rows, lines = [], []
+    with open(path, "rb") as fh:
+        for lineno, raw in enumerate(fh, start=1):
+            text = raw.split(b"#", 1)[0].strip()
+            if not text:
+                continue
+            words = text.split()
+            if len(words) != 6:
+                raise CLIError(f"rays file {path}, line {lineno}: expected 6 numbers (sx sy sz lx ly lz), "
+                               f"got {len(words)}")
+            try:
+                rows.append([float(w) for w in words])
+            except ValueError:
+                raise CLIError(f"rays file {path}, line {lineno}: not a number in "
+                               f"{text.decode('ascii', errors='backslashreplace')!r}") from None
+            if not all(np.isfinite(rows[-1])):
+                raise CLIError(f"rays file {path}, line {lineno}: NaN or Inf in {rows[-1]}")
+            lines.append(lineno)
+    if not rows:
+        raise CLIError(f"rays file {path}: no rays (every line is blank or a comment)")
+    data = np.asarray(rows, dtype=np.float64)
+    return data[:, :3], data[:, 3:], np.asarray(lines)
 
 
 class Progress:
@@ -148,8 +208,10 @@ class Progress:
         sys.stderr.flush()
 
 
-def intersect_in_chunks(dem, s, l, chunk: int = 200_000, **kwargs):
-    """intersect() over many rays in chunks, with a progress bar when there is more than one."""
+def intersect_in_chunks(dem, s, l, chunk: int = 200_000, where=None, **kwargs):
+    """intersect() over many rays in chunks, with a progress bar when there is more
+    than one. where: (file name, line number of each ray), so that an error about
+    ray k names the file's line instead of an index."""
     from . import intersect
     from .intersect import IntersectResult
 
@@ -159,7 +221,15 @@ def intersect_in_chunks(dem, s, l, chunk: int = 200_000, **kwargs):
     bar = Progress(n, "rays", min_total=chunk + 1)
     parts = []
     for a in range(0, n, chunk):
-        parts.append(intersect(dem, s[a:a + chunk], l[a:a + chunk], **kwargs))
+        try:
+            parts.append(intersect(dem, s[a:a + chunk], l[a:a + chunk], **kwargs))
+        except ValueError as exc:
+            if where is None:
+                raise
+            name, lines = where
+            msg = re.sub(r"\b([sl])\[(\d+)\]",
+                         lambda m: f"{m.group(1)} on line {lines[a + int(m.group(2))]} of {name}", str(exc))
+            raise CLIError(msg) from None
         bar(min(a + chunk, n))
     if len(parts) == 1:
         return parts[0]
@@ -169,18 +239,17 @@ def intersect_in_chunks(dem, s, l, chunk: int = 200_000, **kwargs):
 def _run(args) -> int:
     from . import DEM
 
+    _require("xarray", "xarray", "run (NetCDF output)")
+    _require("h5netcdf", "xarray", "run (NetCDF output)")
     dem = DEM.read(args.dem)
-    s, l = _read_rays(Path(args.rays))
-    res = intersect_in_chunks(dem, s, l, step_mode=args.step_mode, dem_read_mode=args.dem_read_mode,
-                              tangent=args.tangent, method=args.method, threads=args.threads, io=args.io)
-    out = _new_run_dir(Path(args.out))
-    write_csv(out / "results.csv", res)
-    written = [out / "results.csv"]
-    try:
+    s, l, lines = _read_rays(Path(args.rays))
+    res = intersect_in_chunks(dem, s, l, where=(args.rays, lines), step_mode=args.step_mode,
+                              dem_read_mode=args.dem_read_mode, tangent=args.tangent, method=args.method,
+                              threads=args.threads, io=args.io)
+    with _run_dir(Path(args.out)) as out:
+        write_csv(out / "results.csv", res)
         res.to_xarray().to_netcdf(out / "results.nc", engine="h5netcdf")
-        written.append(out / "results.nc")
-    except ImportError as exc:
-        print(f"  (no NetCDF output: {exc}; pip install 'planet-intersect[xarray]')")
+        written = [out / "results.csv", out / "results.nc"]
     print(f"{len(res)} rays: {int(res.hit.sum())} hit, {int((res.status == 1).sum())} limb, "
           f"{int((res.status == 2).sum())} away; wrote {', '.join(map(str, written))}")
     return 0
@@ -197,17 +266,22 @@ def _example_dem(args):
     path = Path(args.mola) if args.mola else (
         Path(os.environ.get("PI_SHARED_DATA", "../shared/data")) / "mars_mola_megdr_4ppd" /
         "mars_radius_4ppd_megt_plus_areoid.i2be")
-    if not path.is_file():
+    if not path.exists():
         raise CLIError(f"no Mars DEM: {path} is missing; give --dem NAME.hdr or --mola MEGDR.img "
                        f"(planet-intersect fetch-mola DEST downloads one)")
     return mola_dem(path), str(path)
 
 
 def _examples(args) -> int:
+    _require("matplotlib", "plot", f"examples {args.which} (its figure)")
     from . import examples
 
     dem, source = _example_dem(args)
-    out = _new_run_dir(Path(args.out))
+    with _run_dir(Path(args.out)) as out:
+        return _examples_in(args, examples, dem, source, out)
+
+
+def _examples_in(args, examples, dem, source, out) -> int:
     if args.which == "olympus":
         ex = examples.olympus(dem)
         examples.plot_olympus(ex, out / "olympus_fig8.png")
@@ -297,8 +371,12 @@ def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
         return args.func(args)
-    except (CLIError, ValueError, OSError) as exc:
+    except (CLIError, ValueError, TypeError, OSError) as exc:
         print(f"planet-intersect: error: {exc}", file=sys.stderr)
+        return 2
+    except ImportError as exc:
+        print(f"planet-intersect: error: a Python package is missing ({exc}); "
+              "pip install 'planet-intersect[all]'", file=sys.stderr)
         return 2
 
 

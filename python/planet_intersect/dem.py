@@ -9,15 +9,18 @@ at ``1/(2 ppd)`` degrees east). The header holds Table 1 of the paper: ``ppd``,
 
 from __future__ import annotations
 
+import errno
 import math
 import os
+import re
+import stat
 from pathlib import Path
 
 import numpy as np
 
 from ._status import DEMError, raise_for_stat
 
-__all__ = ["DEM", "read_header", "dem_paths"]
+__all__ = ["DEM", "read_header", "dem_paths", "regular_file", "RADIUS_MIN", "RADIUS_MAX", "MAX_PPD"]
 
 _DTYPES = {"float32": 4, "float64": 8}
 _BYTEORDERS = {"little": "<", "big": ">"}
@@ -31,66 +34,116 @@ def dem_paths(path: str | os.PathLike) -> tuple[Path, Path]:
     return stem.with_name(stem.name + ".hdr"), stem.with_name(stem.name + ".dem")
 
 
+#: Largest ppd accepted (pi_dem::max_ppd): 360 ppd columns index in 32-bit integers.
+MAX_PPD = 1_000_000
+#: The range of radii, rmax and re accepted, in any unit (pi_dem::radius_min/max):
+#: squares and products of lengths, with spacecraft up to 1e15 rmax away, stay far
+#: from overflow and underflow (docs/paper-notes.md, note 19).
+RADIUS_MIN, RADIUS_MAX = 1e-100, 1e100
+#: Largest header file read (the Fortran reader's limit too).
+_HDR_MAX_BYTES = 1_000_000
+
+_INT_TOKEN = re.compile(rb"[+-]?[0-9]{1,9}\Z")
+_REAL_TOKEN = re.compile(rb"[+-]?([0-9]+(\.[0-9]*)?|\.[0-9]+)([eE][+-]?[0-9]{1,3})?\Z")
+_BLANKS = b" \t"
+
+
+def regular_file(path: str | os.PathLike, what: str) -> Path:
+    """``path`` as a Path after checking that it names a readable regular file;
+    otherwise an exception that says what is wrong with it (missing, a directory,
+    a FIFO or device, a symlink loop, unreadable)."""
+    path = Path(path)
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{what} {path}: no such file") from None
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise DEMError(f"{what} {path}: a loop of symbolic links") from None
+        raise DEMError(f"{what} {path}: cannot be used ({exc.strerror})") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise IsADirectoryError(f"{what} {path}: is a directory, not a file")
+    if not stat.S_ISREG(st.st_mode):
+        raise DEMError(f"{what} {path}: not a regular file (a FIFO, socket or device)")
+    if not os.access(path, os.R_OK):
+        raise PermissionError(f"{what} {path}: not readable")
+    return path
+
+
 def read_header(hdr: str | os.PathLike) -> dict:
     """Parse and check a ``.hdr`` file; return ppd, rmax, f, re, dtype, byteorder.
 
-    The first four non-comment lines hold the values of the paper's Table 1,
-    anything after the value being a comment; blank lines and lines starting
-    with ``#`` or ``!`` are skipped. ``key = value`` lines may follow:
-    ``dtype`` (float32, float64) and ``byteorder`` (little, big). Any other key
-    is an error.
+    The grammar (docs/dem-format.md; the Fortran reader ``pi_dem::dem_read_header``
+    implements the same one, and tests feed both the same headers): the file is
+    bytes, at most 1,000,000; lines end at LF, CR or CRLF; space and tab are the
+    only white space. Blank lines and lines starting with ``#`` or ``!`` are
+    skipped. The first four other lines hold the values of the paper's Table 1,
+    ppd (``[+-]`` and 1-9 digits), rmax, f, re (decimal reals: digits with an
+    optional point, or a point and digits, and an optional exponent of 1-3
+    digits); anything after the value on its line is a comment. ``key = value``
+    lines may follow: ``dtype`` (float32, float64) and ``byteorder`` (little,
+    big), without case. Any other line is an error.
     """
-    hdr = Path(hdr)
-    if not hdr.is_file():
-        raise FileNotFoundError(f"DEM header {hdr}: no such file")
+    hdr = regular_file(hdr, "DEM header")
+    if hdr.stat().st_size >= _HDR_MAX_BYTES:
+        raise DEMError(f"DEM header {hdr}: {hdr.stat().st_size} bytes; a header has at most {_HDR_MAX_BYTES - 1}")
+    raw = hdr.read_bytes()
     names = ("ppd", "rmax", "f", "re")
     values: dict = {"dtype": "float32", "byteorder": "little"}
     seen = 0
-    with open(hdr, encoding="utf-8", errors="replace") as fh:
-        for lineno, raw in enumerate(fh, start=1):
-            line = raw.strip()
-            if not line or line[0] in "#!":
-                continue
-            if seen < 4:
-                name = names[seen]
-                token = line.split()[0]
-                try:
-                    value = int(token) if name == "ppd" else float(token)
-                except ValueError:
-                    kind = "an integer" if name == "ppd" else "a number"
-                    raise DEMError(f"DEM header {hdr}, line {lineno}: {name} must be {kind}, got {token!r}") from None
-                values[name] = value
-                seen += 1
-                continue
-            if "=" not in line:
-                raise DEMError(f"DEM header {hdr}, line {lineno}: expected 'key = value' after the four values, got {line!r}")
-            key, _, rest = line.partition("=")
-            key = key.strip().lower()
-            word = rest.split()[0].lower() if rest.split() else ""
-            if key == "dtype" and word in _DTYPES:
-                values["dtype"] = word
-            elif key == "byteorder" and word in _BYTEORDERS:
-                values["byteorder"] = word
-            elif key in ("dtype", "byteorder"):
-                allowed = ", ".join(_DTYPES if key == "dtype" else _BYTEORDERS)
-                raise DEMError(f"DEM header {hdr}, line {lineno}: {key} must be one of {allowed}, got {word!r}")
-            else:
-                raise DEMError(f"DEM header {hdr}, line {lineno}: unknown key {key!r} (known: dtype, byteorder)")
+    for lineno, line in enumerate(re.split(rb"\r\n|\r|\n", raw), start=1):
+        line = line.strip(_BLANKS)
+        if not line or line[:1] in (b"#", b"!"):
+            continue
+        text = line.decode("ascii", errors="backslashreplace")
+        if seen < 4:
+            name = names[seen]
+            token = re.split(rb"[ \t]", line, maxsplit=1)[0]
+            pattern = _INT_TOKEN if name == "ppd" else _REAL_TOKEN
+            if not pattern.match(token):
+                kind = "an integer of at most 9 digits" if name == "ppd" else "a decimal number"
+                raise DEMError(f"DEM header {hdr}, line {lineno}: {name} must be {kind}, "
+                               f"got {token.decode('ascii', errors='backslashreplace')!r}")
+            values[name] = int(token) if name == "ppd" else float(token)
+            seen += 1
+            continue
+        if b"=" not in line:
+            raise DEMError(f"DEM header {hdr}, line {lineno}: expected 'key = value' after the four values, got {text!r}")
+        key, _, rest = line.partition(b"=")
+        key = key.strip(_BLANKS).lower().decode("ascii", errors="backslashreplace")
+        words = re.split(rb"[ \t]+", rest.strip(_BLANKS))
+        word = words[0].lower().decode("ascii", errors="backslashreplace")
+        if key == "dtype" and word in _DTYPES:
+            values["dtype"] = word
+        elif key == "byteorder" and word in _BYTEORDERS:
+            values["byteorder"] = word
+        elif key in ("dtype", "byteorder"):
+            allowed = ", ".join(_DTYPES if key == "dtype" else _BYTEORDERS)
+            raise DEMError(f"DEM header {hdr}, line {lineno}: {key} must be one of {allowed}, got {word!r}")
+        else:
+            raise DEMError(f"DEM header {hdr}, line {lineno}: unknown key {key!r} (known: dtype, byteorder)")
     if seen < 4:
         raise DEMError(f"DEM header {hdr}: {names[seen]} is missing (the header needs ppd, rmax, f, re)")
     _check_parameters(values["ppd"], values["rmax"], values["f"], values["re"], where=f"DEM header {hdr}")
     return values
 
 
+def _real(value, name: str, where: str) -> float:
+    """A real number argument as float; TypeError naming it for anything else."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{where}: {name} must be a real number, got {type(value).__name__} {value!r}")
+    return float(value)
+
+
 def _check_parameters(ppd, rmax, f, re, where):
-    if ppd < 1:
-        raise DEMError(f"{where}: ppd must be >= 1, got {ppd}")
-    if not (math.isfinite(rmax) and rmax > 0):
-        raise DEMError(f"{where}: rmax must be positive and finite, got {rmax}")
+    if not 1 <= ppd <= MAX_PPD:
+        raise DEMError(f"{where}: ppd must be in 1..{MAX_PPD}, got {ppd}")
+    if not (RADIUS_MIN <= rmax <= RADIUS_MAX):
+        raise DEMError(f"{where}: rmax must be in [{RADIUS_MIN:g}, {RADIUS_MAX:g}], got {rmax}")
     if not (math.isfinite(f) and 0 <= f < 1):
         raise DEMError(f"{where}: flattening f must be in [0, 1), got {f}")
-    if not (math.isfinite(re) and re > 0):
-        raise DEMError(f"{where}: equatorial radius re must be positive and finite, got {re}")
+    if not (RADIUS_MIN <= re <= RADIUS_MAX):
+        raise DEMError(f"{where}: equatorial radius re must be in [{RADIUS_MIN:g}, {RADIUS_MAX:g}], got {re}")
 
 
 def _row_blocks(radii):
@@ -109,7 +162,8 @@ def _row_blocks(radii):
 
 
 def _check_radii(radii, rmax: float, where: str) -> float:
-    """Check finite, positive radii not above rmax, block by block; return the maximum."""
+    """Check finite radii in [RADIUS_MIN, RADIUS_MAX] not above rmax, block by block;
+    return the maximum."""
     top = -math.inf
     for j, block in _row_blocks(radii):
         bad = ~np.isfinite(block)
@@ -119,6 +173,11 @@ def _check_radii(radii, rmax: float, where: str) -> float:
         if (block <= 0).any():
             jj, ii = np.argwhere(block <= 0)[0]
             raise DEMError(f"{where}: radius at row {j + jj}, column {ii} is {block[jj, ii]} (must be positive)")
+        out = (block < RADIUS_MIN) | (block > RADIUS_MAX)
+        if out.any():
+            jj, ii = np.argwhere(out)[0]
+            raise DEMError(f"{where}: radius at row {j + jj}, column {ii} is {block[jj, ii]:g}, outside "
+                           f"[{RADIUS_MIN:g}, {RADIUS_MAX:g}] (a no-data value? fill it before making a DEM)")
         top = max(top, float(block.max()))
     if rmax is not None and top > rmax:
         raise DEMError(f"{where}: rmax = {rmax} is below the largest radius {top}")
@@ -142,16 +201,51 @@ class DEM:
     ``path`` (the ``.hdr`` path, None in memory).
     """
 
-    def __init__(self, radii: np.ndarray, ppd: int, rmax: float, f: float, re: float, path: Path | None = None):
+    def __init__(self, radii: np.ndarray, ppd: int, rmax: float, f: float, re: float, path: Path | None = None,
+                 header: dict | None = None):
         self.radii = radii
         self.ppd = int(ppd)
         self.rmax = float(rmax)
         self.f = float(f)
         self.re = float(re)
         self.path = path
+        self._header = header
+        self._identity = None
+        if path is not None:
+            self._identity = self._file_identity()
         self._radii64 = None
         self._pyramid = None
         self._map_poles = None
+
+    # the file behind a DEM ---------------------------------------------------------
+    def _file_identity(self):
+        st = os.stat(dem_paths(self.path)[1])
+        return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+
+    def check_file(self) -> None:
+        """Raise :class:`DEMError` when the ``.dem`` file of a file-backed DEM has
+        been removed, replaced, resized or rewritten since :meth:`read` (reading
+        it through the memory map would then kill the process with SIGBUS, or
+        give radii that were never checked). Called before every use of the file."""
+        if self.path is None:
+            return
+        dem = dem_paths(self.path)[1]
+        try:
+            now = self._file_identity()
+        except OSError as exc:
+            raise DEMError(f"DEM data {dem}: cannot be used any more ({exc.strerror}); read the DEM again") from None
+        if now != self._identity:
+            what = "its size changed" if now[2] != self._identity[2] else "it was replaced or rewritten"
+            raise DEMError(f"DEM data {dem}: {what} since DEM.read (size {self._identity[2]} -> {now[2]} bytes); "
+                           "read the DEM again")
+
+    def header_args(self) -> tuple:
+        """(ppd, rmax, f, re, itemsize, swap) of a file-backed DEM as Python parsed
+        them, for the Fortran core's file routines (one header parser for both
+        storage modes)."""
+        itemsize = self.radii.dtype.itemsize
+        swap = int(not self.radii.dtype.isnative)
+        return self.ppd, self.rmax, self.f, self.re, itemsize, swap
 
     # construction -----------------------------------------------------------------
     @classmethod
@@ -161,10 +255,11 @@ class DEM:
         The ``.dem`` is memory-mapped read-only; it is checked once here: size,
         finite positive radii, ``rmax >= max(radii)``.
         """
+        if Path(path).is_dir():
+            raise IsADirectoryError(f"DEM {path}: is a directory; give the DEM as NAME, NAME.hdr or NAME.dem")
         hdr, dem = dem_paths(path)
         h = read_header(hdr)
-        if not dem.is_file():
-            raise FileNotFoundError(f"DEM data {dem}: no such file (header {hdr})")
+        regular_file(dem, f"DEM data (header {hdr})")
         ppd = h["ppd"]
         nlat, nlon = 180 * ppd, 360 * ppd
         itemsize = _DTYPES[h["dtype"]]
@@ -177,25 +272,42 @@ class DEM:
         dtype = np.dtype(h["dtype"]).newbyteorder(_BYTEORDERS[h["byteorder"]])
         _check_radii((dem, dtype, (nlat, nlon)), h["rmax"], where=f"DEM data {dem}")
         radii = np.memmap(dem, dtype=dtype, mode="r", shape=(nlat, nlon))
-        return cls(radii, ppd, h["rmax"], h["f"], h["re"], path=hdr)
+        out = cls(radii, ppd, h["rmax"], h["f"], h["re"], path=hdr, header=h)
+        if out._identity[2] != expected:                    # changed between the check and the map
+            raise DEMError(f"DEM data {dem}: its size changed while it was being read")
+        return out
 
     @classmethod
     def from_array(cls, radii, f: float = 0.0, re: float = 1.0, rmax: float | None = None) -> "DEM":
         """A DEM in memory from ``radii[nlat, nlon]`` (row 0 south).
 
         ``ppd`` follows from the shape (``nlat = 180 ppd``, ``nlon = 360 ppd``);
-        ``rmax`` defaults to the largest radius.
+        ``rmax`` defaults to the largest radius. The DEM keeps a private,
+        read-only copy of the radii (float32 stays float32, other real or
+        integer types become float64): changing the caller's array afterwards
+        does not change the DEM.
         """
-        radii = np.asarray(radii)
-        if radii.ndim != 2 or radii.shape[1] != 2 * radii.shape[0] or radii.shape[0] % 180 or radii.shape[0] == 0:
-            raise DEMError(f"radii: shape {radii.shape} is not (180*ppd, 360*ppd) for an integer ppd >= 1")
-        if not np.issubdtype(radii.dtype, np.floating):
-            radii = radii.astype(np.float64)
-        ppd = radii.shape[0] // 180
-        top = _check_radii(radii, rmax, where="radii")
-        rmax = top if rmax is None else float(rmax)
-        _check_parameters(ppd, rmax, f, re, where="DEM.from_array")
-        return cls(radii, ppd, rmax, f, re, path=None)
+        where = "DEM.from_array"
+        f = _real(f, "f", where)
+        re_ = _real(re, "re", where)
+        if rmax is not None:
+            rmax = _real(rmax, "rmax", where)
+        try:
+            arr = np.asarray(radii)
+        except (TypeError, ValueError) as exc:
+            raise TypeError(f"{where}: radii is not an array of numbers ({exc})") from None
+        if arr.dtype.kind not in "fiu":
+            raise TypeError(f"{where}: radii must be real numbers, got dtype {arr.dtype}")
+        if arr.ndim != 2 or arr.shape[1] != 2 * arr.shape[0] or arr.shape[0] % 180 or arr.shape[0] == 0:
+            raise DEMError(f"radii: shape {arr.shape} is not (180*ppd, 360*ppd) for an integer ppd >= 1")
+        dtype = np.float32 if arr.dtype == np.float32 else np.float64
+        arr = np.array(arr, dtype=dtype, order="C", copy=True)     # private: the caller's array stays theirs
+        arr.flags.writeable = False
+        ppd = arr.shape[0] // 180
+        top = _check_radii(arr, rmax, where="radii")
+        rmax = top if rmax is None else rmax
+        _check_parameters(ppd, rmax, f, re_, where=where)
+        return cls(arr, ppd, rmax, f, re_, path=None)
 
     # properties ---------------------------------------------------------------------
     @property
@@ -240,6 +352,7 @@ class DEM:
         the machine's (the core then maps the file itself for each call)."""
         if not isinstance(self.radii, np.memmap) or not self.radii.dtype.isnative:
             return None
+        self.check_file()
         if not self.radii.flags.c_contiguous:
             return None
         return self.radii.reshape(-1).view(np.int8)
@@ -259,9 +372,19 @@ class DEM:
         return self._map_poles
 
     def radii64(self) -> np.ndarray:
-        """The grid as a C-ordered float64 array (converted once and kept)."""
+        """The grid as a C-ordered float64 array (converted once and kept, read-only)."""
         if self._radii64 is None:
-            self._radii64 = np.ascontiguousarray(self.radii, dtype=np.float64)
+            self.check_file()
+            if self.path is not None:
+                r64 = np.empty((self.nlat, self.nlon))
+                for j in range(0, self.nlat, _BLOCK_ROWS):
+                    r64[j:j + _BLOCK_ROWS] = self._read_rows(j, min(j + _BLOCK_ROWS, self.nlat))
+            else:
+                r64 = np.ascontiguousarray(self.radii, dtype=np.float64)
+                if r64 is self.radii:
+                    r64 = r64.copy()
+            r64.flags.writeable = False
+            self._radii64 = r64
         return self._radii64
 
     def pyramid(self) -> tuple[np.ndarray, np.ndarray]:
@@ -279,6 +402,7 @@ class DEM:
         """
         if self._pyramid is not None:
             return self._pyramid
+        self.check_file()
         nlat, nlon = self.nlat, self.nlon
         shapes = [((nlat + 2) // 2, nlon // 2)]            # level 1: cell rows 0..nlat in pairs
         while shapes[-1] != (1, 1):
@@ -366,14 +490,36 @@ class DEM:
         pixel of a pole the pole carries the mean of the adjacent row."""
         from . import _core
 
-        lat, lon = np.broadcast_arrays(np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64))
+        lat = _real_array(lat, "lat")
+        lon = _real_array(lon, "lon")
+        try:
+            lat, lon = np.broadcast_arrays(lat, lon)
+        except ValueError:
+            raise ValueError(f"lat and lon: shapes {lat.shape} and {lon.shape} do not broadcast") from None
         shape = lat.shape
         flat_lat, flat_lon = lat.ravel(), lon.ravel()
+        if flat_lat.size == 0:
+            return np.zeros(shape)
         if not (np.isfinite(flat_lat).all() and np.isfinite(flat_lon).all()):
-            raise ValueError("lat/lon: NaN or Inf values")
+            bad = ~(np.isfinite(flat_lat) & np.isfinite(flat_lon))
+            raise ValueError(f"lat/lon: NaN or Inf at index {int(np.argmax(bad))}")
         if (np.abs(flat_lat) > 90).any():
-            raise ValueError("lat: values outside [-90, 90] degrees")
+            k = int(np.argmax(np.abs(flat_lat) > 90))
+            raise ValueError(f"lat[{k}] = {flat_lat[k]} is outside [-90, 90] degrees")
         r, stat = _core.core_radius_grid(self.radii64().T, self.ppd, self.rmax, np.radians(flat_lat),
                                          np.radians(flat_lon))
         raise_for_stat(stat, "DEM.radius")
         return r.reshape(shape)
+
+
+def _real_array(value, name: str) -> np.ndarray:
+    """``value`` as a float64 array; a clear error for complex, text or objects."""
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"{name}: not an array of numbers ({exc})") from None
+    if arr.dtype.kind not in "fiub":
+        raise TypeError(f"{name}: must be real numbers, got dtype {arr.dtype}")
+    if arr.dtype.kind == "b":
+        raise TypeError(f"{name}: must be real numbers, got booleans")
+    return arr.astype(np.float64, copy=False)

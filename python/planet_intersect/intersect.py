@@ -7,6 +7,8 @@ vectors, and turns the core's status codes into exceptions.
 
 from __future__ import annotations
 
+import os
+import warnings
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -83,26 +85,83 @@ def _ray_status_items():
     return RAY_STATUS.items()
 
 
-def _as_vectors(v, name: str) -> np.ndarray:
+#: Largest squared length taken without rescaling, and the smallest.
+_N2_MAX, _N2_MIN = 1e300, 1e-300
+#: Spacecraft farther than this many rmax are rejected (pi_intersect::far_limit).
+FAR_LIMIT = 1e15
+#: Most OpenMP threads one call may ask for.
+MAX_THREADS = 1024
+
+
+def as_vectors(v, name: str) -> np.ndarray:
+    """``v`` as a float64 (N, 3) array of finite, non-zero vectors (a (3,) vector
+    becomes (1, 3)); ValueError or TypeError naming ``name`` and the row otherwise."""
     try:
-        v = np.asarray(v, dtype=np.float64)
+        arr = np.asarray(v)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{name}: not an array of numbers ({exc})") from None
+    if arr.dtype.kind not in "fiu":
+        raise TypeError(f"{name}: must be real numbers, got dtype {arr.dtype}")
+    v = arr.astype(np.float64, copy=False)
     shape = v.shape
     if v.ndim == 1:
         v = v[None, :]
     if v.ndim != 2 or v.shape[1] != 3:
         raise ValueError(f"{name}: expected shape (3,) or (N, 3), got {shape}")
-    n2 = np.einsum("ij,ij->i", v, v)                 # one pass: finite and non-zero rows pass
-    if np.isfinite(n2).all() and n2.all():
+    n2 = np.einsum("ij,ij->i", v, v)                 # one pass: finite, well-scaled rows pass
+    if ((n2 >= _N2_MIN) & (n2 <= _N2_MAX)).all():
         return v
     bad = ~np.isfinite(v).all(axis=1)
     if bad.any():
         raise ValueError(f"{name}[{int(np.argmax(bad))}] has NaN or Inf components: {v[np.argmax(bad)]}")
-    zero = np.linalg.norm(v, axis=1) == 0
+    zero = ~v.any(axis=1)
     if zero.any():
         raise ValueError(f"{name}[{int(np.argmax(zero))}] has zero length")
     return v
+
+
+def _unit_scaled(v: np.ndarray) -> np.ndarray:
+    """Directions whose squared length would underflow or overflow, scaled by a
+    power of two (exact: the direction is unchanged to the last bit) so that
+    their largest component lies in [0.5, 1); other rows as they are."""
+    n2 = np.einsum("ij,ij->i", v, v)
+    odd = ~((n2 >= _N2_MIN) & (n2 <= _N2_MAX))
+    if not odd.any():
+        return v
+    v = v.copy()
+    _, e = np.frexp(np.abs(v[odd]).max(axis=1))
+    v[odd] = np.ldexp(v[odd], -e[:, None])
+    return v
+
+
+def check_threads(threads, n: int) -> int:
+    """The OpenMP thread count for n rays: None or 0 means all cores; otherwise an
+    integer in 1..MAX_THREADS, used as min(threads, n) (threads beyond the rays
+    would idle). Results are bit-identical for any count."""
+    if threads is None:
+        threads = 0
+    if isinstance(threads, (bool, np.bool_)) or not isinstance(threads, (int, np.integer)) \
+            or not 0 <= threads <= MAX_THREADS:
+        raise ValueError(f"threads must be an integer in 0..{MAX_THREADS} (0 or None: all cores), got {threads!r}")
+    threads = int(threads)
+    if threads == 0:
+        threads = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(threads, n))
+
+
+def _choice(value, name: str, allowed) -> str:
+    if not isinstance(value, str) or value not in allowed:
+        raise ValueError(f"{name} must be one of {', '.join(repr(a) for a in allowed)}, got {value!r}")
+    return value
+
+
+def _empty_result() -> "IntersectResult":
+    vec, sca = np.zeros((0, 3)), np.zeros(0)
+    return IntersectResult(hit=np.zeros(0, dtype=bool), p=vec, lat=sca, lon=sca.copy(), radius=sca.copy(),
+                           altitude=sca.copy(), emission=sca.copy(), t=vec.copy(), tc=vec.copy(), sc=vec.copy(),
+                           tangent_lat=sca.copy(), tangent_lon=sca.copy(), tangent_altitude=sca.copy(),
+                           tangent_height=sca.copy(), status=np.zeros(0, dtype=np.int8),
+                           nsteps=np.zeros(0, dtype=np.int32))
 
 
 def _check_mode(value, name: str) -> int:
@@ -170,21 +229,25 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
         raise TypeError(f"dem must be a planet_intersect.DEM, got {type(dem).__name__}")
     step_mode = _check_mode(step_mode, "step_mode")
     dem_read_mode = _check_mode(dem_read_mode, "dem_read_mode")
-    if io not in ("records", "mmap"):
-        raise ValueError(f"io must be 'records' or 'mmap', got {io!r}")
-    if method not in _METHOD:
-        raise ValueError(f"method must be 'stepping' or 'exact', got {method!r}")
-    if tangent not in _TANGENT:
-        raise ValueError(f"tangent must be 'exact' or 'paper', got {tangent!r}")
-    if threads is None:
-        threads = 0
-    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 0:
-        raise ValueError(f"threads must be a non-negative integer (0 or None: all cores), got {threads!r}")
-    s = _as_vectors(s, "s")
-    l = _as_vectors(l, "l")
+    _choice(io, "io", ("records", "mmap"))
+    _choice(method, "method", tuple(_METHOD))
+    _choice(tangent, "tangent", tuple(_TANGENT))
+    check_threads(threads, 1)
+    s = as_vectors(s, "s")
+    l = as_vectors(l, "l")
     if len(s) != len(l) and len(s) != 1 and len(l) != 1:
         raise ValueError(f"s and l: {len(s)} positions do not broadcast against {len(l)} lines of sight")
-    n = max(len(s), len(l))
+    far = np.einsum("ij,ij->i", s, s) > (FAR_LIMIT * dem.rmax) ** 2
+    if far.any():
+        k = int(np.argmax(far))
+        raise ValueError(f"s[{k}] = {s[k]} is {np.linalg.norm(s[k]) / dem.rmax:.3g} rmax from the centre: "
+                         f"at most {FAR_LIMIT:g} rmax (a unit vector's direction is resolved to ~1e-16, so "
+                         "farther away the line's position at the planet is lost to rounding)")
+    l = _unit_scaled(l)
+    n = 0 if min(len(s), len(l)) == 0 else max(len(s), len(l))
+    if n == 0:
+        return _empty_result()
+    threads = check_threads(threads, n)
     s = np.ascontiguousarray(np.broadcast_to(s, (n, 3)))
     l = np.ascontiguousarray(np.broadcast_to(l, (n, 3)))
 
@@ -198,14 +261,16 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
         if dem.path is None:
             raise ValueError("dem_read_mode=1 reads records from the DEM's file: "
                              "this DEM is in memory (write it with dem.write() and DEM.read() it)")
+        dem.check_file()
         mapped = dem.mapped_bytes() if io == "mmap" else None
         if mapped is not None:
             # the DEM's own memory map, open between calls: pages already brought in stay mapped
             out = _core.core_intersect_mapped(mapped, dem.radii.dtype.itemsize, dem.ppd, dem.rmax, dem.f, dem.re,
                                               dem.mapped_poles(), s.T, l.T, step_mode, _TANGENT[tangent], pyr_data, pyr_meta.T, **extra)
         else:
-            out = _core.core_intersect_file(str(dem.path), 1, s.T, l.T, step_mode, _TANGENT[tangent], pyr_data,
-                                            pyr_meta.T, use_map=int(io == "mmap"), **extra)
+            out = _core.core_intersect_file(str(dem.path), 1, *dem.header_args(), s.T, l.T, step_mode,
+                                            _TANGENT[tangent], pyr_data, pyr_meta.T, use_map=int(io == "mmap"),
+                                            **extra)
         where = f"intersect (dem_read_mode=1, {dem.path})"
     p, t, tc, sc, scal, status, nsteps, stat = out
     raise_for_stat(stat, where)
@@ -218,6 +283,13 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
     unreadable = np.flatnonzero(status == RayStatus.READ_ERROR)
     if unreadable.size:
         raise DEMError(f"{where}: a DEM record needed by ray {int(unreadable[0])} could not be read or is invalid")
+    if dem.path is not None and dem_read_mode == 1:
+        dem.check_file()                      # changed during the call: the records read may be mixed
+    unresolved = int(np.count_nonzero(status == RayStatus.UNRESOLVED))
+    if unresolved:
+        warnings.warn(f"{where}: {unresolved} ray(s) could not be resolved in floating point (status 8, "
+                      f"first: ray {int(np.argmax(status == RayStatus.UNRESOLVED))}); their results are NaN",
+                      RuntimeWarning, stacklevel=2)
 
     lat, lon = np.degrees(scal[0]), np.degrees(scal[1])
     tlat, tlon = np.degrees(scal[5]), np.degrees(scal[6])
