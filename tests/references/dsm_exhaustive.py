@@ -520,9 +520,10 @@ class _Chunk:
                     pred = np.where(np.isfinite(pred), pred, prev["r"][act])
                     self.left_r[act[hl]] = pred[hl]
             # certificates on sample intervals that start before the event
-            Lf = cur["r"] - pv["r"]
             start_before = okk & (pv["r"] < r_ev[:, None])
-            L = np.minimum(cur["r"], r_ev[:, None]) - pv["r"]
+            with np.errstate(invalid="ignore"):
+                Lf = cur["r"] - pv["r"]
+                L = np.minimum(cur["r"], r_ev[:, None]) - pv["r"]
             gmin = pv["g"].copy()
             for g_ in groups:
                 gmin = np.minimum(gmin, np.where(g_["r"] < r_ev[:, None], g_["g"], np.inf))
