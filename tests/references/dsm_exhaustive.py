@@ -222,8 +222,8 @@ class Surface:
         """Upper bound of g'' = h'' - H'' on segments (one cell each) of length L."""
         if self.nearest:
             return np.full(np.shape(ua), self.kh)
-        i = np.clip(np.floor(0.5 * (ua + ub)).astype(np.int64), 0, self.nrows - 2)
-        j = np.clip(np.floor(0.5 * (va + vb)).astype(np.int64), 0, self.ncols - 2)
+        i = np.clip(np.floor(np.nan_to_num(0.5 * (ua + ub))).astype(np.int64), 0, self.nrows - 2)
+        j = np.clip(np.floor(np.nan_to_num(0.5 * (va + vb))).astype(np.int64), 0, self.ncols - 2)
         with np.errstate(invalid="ignore", divide="ignore"):
             du = np.abs(ub - ua) / L + self.u2 * L
             dv = np.abs(vb - va) / L + self.v2 * L
@@ -396,7 +396,8 @@ class _Chunk:
     # -- helpers ------------------------------------------------------------
     def _certify(self, pa, pb):
         """True where a segment (both ends clear, in valid data) is certified free of hits."""
-        L = np.abs(pb["r"] - pa["r"])
+        with np.errstate(invalid="ignore"):
+            L = np.abs(pb["r"] - pa["r"])
         K = self.srf.seg_k(pa["u"], pa["v"], pb["u"], pb["v"], L)
         gmin = np.minimum(pa["g"], pb["g"])
         both = np.isfinite(pa["g"]) & np.isfinite(pb["g"])

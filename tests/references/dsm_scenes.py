@@ -426,9 +426,17 @@ def suite(n_rays, seed=0, interpolation="nearest", places=tuple(PLACES)):
 
 
 def min_clearance_at_edge(scene_grid, s, l, u, v, top, a=WGS84_A, f=WGS84_F):
-    """Height of the ray above ``top`` where it crosses the edge point (for checking graze rays)."""
+    """Height of the ray above ``top`` where it passes over the edge point (u, v) (checks graze rays).
+
+    The ray's point nearest to the vertical line through the edge point (its
+    horizontal position there), minus ``top``.
+    """
     lat, lon = grid_to_geodetic(scene_grid, u, v)
     E = geodetic_to_ecef(lat, lon, top)
-    r = np.sum((E - s) * l, axis=-1)
+    up = up_vector(lat, lon)
+    w = s - E
+    wh = w - np.sum(w * up, axis=-1)[..., None] * up
+    lh = l - np.sum(l * up, axis=-1)[..., None] * up
+    r = -np.sum(wh * lh, axis=-1) / np.sum(lh * lh, axis=-1)
     _, _, h = ecef_to_geodetic(s + r[..., None] * l, a, f)
     return h - top
