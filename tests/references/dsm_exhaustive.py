@@ -161,6 +161,22 @@ class Surface:
             self.c_uv = np.abs(H[:-1, :-1] - H[1:, :-1] - H[:-1, 1:] + H[1:, 1:])
             self.hu = np.maximum(np.abs(H[1:, :-1] - H[:-1, :-1]), np.abs(H[1:, 1:] - H[:-1, 1:]))
             self.hv = np.maximum(np.abs(H[:-1, 1:] - H[:-1, :-1]), np.abs(H[1:, 1:] - H[1:, :-1]))
+            # per cell: H = c0 + cu t + cv q + cuv t q (t, q in [0, 1]), and "all four nodes valid"
+            self.coef = np.stack([H[:-1, :-1], H[1:, :-1] - H[:-1, :-1], H[:-1, 1:] - H[:-1, :-1],
+                                  H[:-1, :-1] - H[1:, :-1] - H[:-1, 1:] + H[1:, 1:]], axis=-1)
+            v = self.valid
+            self.cell_ok = v[:-1, :-1] & v[1:, :-1] & v[:-1, 1:] & v[1:, 1:]
+            # curvature terms of the cell and its 3 neighbours of larger index (a sample interval
+            # touches at most the 2 x 2 cells from its smaller indices)
+            A2 = 2.0 * self.c_uv
+            B2 = self.hu * self.u2 + self.hv * self.v2
+
+            def max22(x):
+                y = np.pad(x, ((0, 1), (0, 1)), mode="edge")
+                return np.maximum.reduce([y[:-1, :-1], y[1:, :-1], y[:-1, 1:], y[1:, 1:]])
+
+            self.A22, self.B22 = max22(A2), max22(B2)
+            self.A_max, self.B_max = float(A2.max()), float(B2.max())
 
     # ---- grid coordinates -------------------------------------------------
     def uv(self, sphi, cphi, lon_rad):
@@ -189,13 +205,18 @@ class Surface:
         j = np.clip(np.floor(v).astype(np.int64), 0, self.ncols - 2)
         t = np.clip(u - i, 0.0, 1.0)
         q = np.clip(v - j, 0.0, 1.0)
-        w = ((1 - t) * (1 - q), t * (1 - q), (1 - t) * q, t * q)
-        nodes = ((i, j), (i + 1, j), (i, j + 1), (i + 1, j + 1))
-        H = np.zeros(np.shape(u))
-        ok = np.ones(np.shape(u), dtype=bool)
-        for wk, (ii, jj) in zip(w, nodes):
-            H = H + wk * self.Hz[ii, jj]
-            ok &= ~((wk > 0) & ~self.valid[ii, jj])
+        c = self.coef[i, j]
+        H = c[..., 0] + c[..., 1] * t + c[..., 2] * q + c[..., 3] * (t * q)
+        ok = self.cell_ok[i, j]
+        bad = ~ok
+        if bad.any():  # a no-data node in the cell: the point is no-data only if that node has weight > 0
+            ib, jb, tb, qb = i[bad], j[bad], t[bad], q[bad]
+            okb = np.ones(ib.shape, bool)
+            for wk, (ii, jj) in zip(((1 - tb) * (1 - qb), tb * (1 - qb), (1 - tb) * qb, tb * qb),
+                                    ((ib, jb), (ib + 1, jb), (ib, jb + 1), (ib + 1, jb + 1))):
+                okb &= ~((wk > 0) & ~self.valid[ii, jj])
+            ok = ok.copy()
+            ok[bad] = okb
         return H, ok
 
     def wall(self, axis, c0, c1, other):
@@ -432,21 +453,26 @@ class _Chunk:
         self.has_ev[ray_s] = True
 
     # -- stage 1: the fixed-step scan --------------------------------------
-    def _interval_k(self, pv, cur, L):
-        """Bound of g'' over a sample interval (all cells it may touch)."""
+    def _interval_k(self, pv, cur, L, cand=None):
+        """Bound of g'' over sample intervals (all cells they may touch); cand: where it is needed."""
         srf = self.srf
         if srf.nearest:
             return np.full(L.shape, srf.kh)
         with np.errstate(invalid="ignore", divide="ignore"):
             du = np.where(L > 0, np.abs(cur["u"] - pv["u"]) / L, 0.0) + srf.u2 * L
             dv = np.where(L > 0, np.abs(cur["v"] - pv["v"]) / L, 0.0) + srf.v2 * L
-        kH = np.zeros(L.shape)
-        for uu in (pv["u"], cur["u"]):
-            i = np.clip(np.floor(np.nan_to_num(uu)).astype(np.int64), 0, srf.nrows - 2)
-            for vv in (pv["v"], cur["v"]):
-                j = np.clip(np.floor(np.nan_to_num(vv)).astype(np.int64), 0, srf.ncols - 2)
-                kH = np.maximum(kH, 2.0 * srf.c_uv[i, j] * du * dv + srf.hu[i, j] * srf.u2 + srf.hv[i, j] * srf.v2)
-        return srf.kh + 1.01 * kH + 1e-12
+        du = np.nan_to_num(du)
+        dv = np.nan_to_num(dv)
+        if cand is None:  # the global bound
+            return srf.kh + 1.01 * (srf.A_max * du * dv + srf.B_max) + 1e-12
+        K = np.full(L.shape, np.inf)
+        ii, jj = np.nonzero(cand)
+        uu = np.minimum(pv["u"][ii, jj], cur["u"][ii, jj])
+        vv = np.minimum(pv["v"][ii, jj], cur["v"][ii, jj])
+        i = np.clip(np.floor(np.nan_to_num(uu)).astype(np.int64), 0, srf.nrows - 2)
+        j = np.clip(np.floor(np.nan_to_num(vv)).astype(np.int64), 0, srf.ncols - 2)
+        K[ii, jj] = srf.kh + 1.01 * (srf.A22[i, j] * du[ii, jj] * dv[ii, jj] + srf.B22[i, j]) + 1e-12
+        return K
 
     def scan(self):
         srf, ev = self.srf, self.ev
@@ -472,18 +498,20 @@ class _Chunk:
             k = k0 + np.arange(BLOCK)
             okk = k[None, :] <= self.nsamp[act, None]
             r = self.rA[act, None] + np.minimum(k[None, :], self.nsamp[act, None]) * self.dr[act, None]
-            cur = ev(np.repeat(s, BLOCK, axis=0), np.repeat(l, BLOCK, axis=0), r.reshape(-1))
-            cur = {kk: vv.reshape(na, BLOCK) for kk, vv in cur.items()}
+            cur = ev(s[:, None, :], l[:, None, :], r)
             cur["r"] = np.where(okk, cur["r"], np.inf)
             cur["g"] = np.where(okk, cur["g"], np.inf)
             for kk in ("hit", "nod", "ev", "low_out"):
                 cur[kk] &= okk
-            pv = {kk: np.concatenate([prev[kk][act, None], cur[kk][:, :-1]], axis=1) for kk in _FIELDS}
+            # the previous point of each sample: fields needed everywhere (others gathered on demand)
+            pv = {kk: np.concatenate([prev[kk][act, None], cur[kk][:, :-1]], axis=1) for kk in ("r", "u", "v", "g")}
+            cells_cur = srf.cell(cur["u"], cur["v"])
+            cells_prev = srf.cell(prev["u"][act], prev["v"][act])
             # crossings of grid lines between consecutive samples: test points of their own
             groups = [cur]
             for axis, key in ((0, "u"), (1, "v")):
-                ca = srf.cell(pv["u"], pv["v"])[axis]
-                cb_ = srf.cell(cur["u"], cur["v"])[axis]
+                cb_ = cells_cur[axis]
+                ca = np.concatenate([cells_prev[axis][:, None], cb_[:, :-1]], axis=1)
                 nmax = (srf.nrows if axis == 0 else srf.ncols) - (0 if srf.nearest else 1)
                 rel = (ca >= -1) & (ca <= nmax) & (cb_ >= -1) & (cb_ <= nmax)  # a grid line of the area
                 m = okk & (ca != cb_) & rel
@@ -529,10 +557,15 @@ class _Chunk:
             for g_ in groups:
                 gmin = np.minimum(gmin, np.where(g_["r"] < r_ev[:, None], g_["g"], np.inf))
             Lf = np.where(start_before, Lf, 0.0)
-            K = self._interval_k(pv, cur, Lf)
+            K = self._interval_k(pv, cur, Lf)  # global bound first: most intervals pass it
             sus = start_before & np.isfinite(gmin) & (gmin <= K * L * L / 8.0)
+            if sus.any() and not srf.nearest:
+                K = self._interval_k(pv, cur, Lf, cand=sus)
+                sus &= gmin <= K * L * L / 8.0
             if sus.any():
-                self._split_sus(act, sus, [pv] + groups[1:] + [cur], r_ev)
+                pvf = {kk: (pv[kk] if kk in pv else
+                            np.concatenate([prev[kk][act, None], cur[kk][:, :-1]], axis=1)) for kk in _FIELDS}
+                self._split_sus(act, sus, [pvf] + groups[1:] + [cur], r_ev)
             # events: bracket (last test point before, first event)
             if has.any():
                 rows = np.nonzero(has)[0]
