@@ -523,15 +523,18 @@ def test_following_measured_against_exhaustive(ci_suite):
     print(f"  total: {tot[0]} true hits, {tot[1]} missed, {tot[2]} late, {tot[3]} early")
 
 
-def _box_rays(rng, n, fp, grid, faces=True):
-    """Rays at the middle of the box faces and the ground around it (away from edges), elevation 10-85 deg."""
-    u = rng.uniform(60, 140, n)
-    v = rng.uniform(50, 150, n)
+def _box_rays(rng, n, fp, grid):
+    """Rays aimed at ground points around and under the box (they meet the roof, a wall or the ground).
+
+    Elevations >= 40 deg, so the part of each ray below the roof height stays inside the 300 x 300 grid.
+    """
+    u = rng.uniform(110, 190, n)
+    v = rng.uniform(100, 200, n)
     lat = grid["lat_first"] + u * grid["dlat"]
     lon = grid["lon_first"] + v * grid["dlon"]
-    T = gd.geodetic_to_ecef(lat, lon, rng.uniform(5, fp["hb"] - 5, n))
+    T = gd.geodetic_to_ecef(lat, lon, 0.0)
     sat = rng.random(n) < 0.5
-    zen = np.where(sat, rng.uniform(5, 35, n), rng.uniform(30, 80, n))
+    zen = np.where(sat, rng.uniform(5, 35, n), rng.uniform(20, 50, n))
     dist = np.where(sat, rng.uniform(500e3, 700e3, n), rng.uniform(500, 3000, n))
     return _rays_at(T, zen, rng.uniform(0, 2 * np.pi, n), dist)
 
@@ -539,7 +542,7 @@ def _box_rays(rng, n, fp, grid, faces=True):
 @needs_dsm
 def test_box_closed_form_all_methods():
     rng = np.random.default_rng(12)
-    heights, grid, fp = bx.box_grid(45.0, 10.0, 200, 200, 80, 119, 70, 129, 60.0)
+    heights, grid, fp = bx.box_grid(45.0, 10.0, 300, 300, 130, 169, 120, 179, 60.0)
     s, l = _box_rays(rng, 3000, fp, grid)
     cf = bx.box_first_hit(s, l, **fp)
     lat, lon, _ = gd.ecef_to_geodetic(cf["p"])

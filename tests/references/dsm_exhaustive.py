@@ -561,7 +561,8 @@ class _Chunk:
             sus = start_before & np.isfinite(gmin) & (gmin <= K * L * L / 8.0)
             if sus.any() and not srf.nearest:
                 K = self._interval_k(pv, cur, Lf, cand=sus)
-                sus &= gmin <= K * L * L / 8.0
+                with np.errstate(invalid="ignore"):
+                    sus &= gmin <= K * L * L / 8.0
             if sus.any():
                 pvf = {kk: (pv[kk] if kk in pv else
                             np.concatenate([prev[kk][act, None], cur[kk][:, :-1]], axis=1)) for kk in _FIELDS}
