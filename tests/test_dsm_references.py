@@ -262,6 +262,11 @@ def test_statuses_on_purpose_built_rays():
     # LEFT_DSM of a ray aimed outside: where it came down to H_max
     assert abs(ref["h"][4] - 40.0) < 1e-6
     assert np.isnan(ref["r"][0]) and np.isnan(ref["r"][7])
+    # bilinear: the same statuses; the area ends at the last pixel centre
+    refb = exhaustive_first_hit(heights, s=s, l=l, interpolation="bilinear", nodata=nod, **grid)
+    assert [STATUS_NAMES[x] for x in refb["status"]] == [STATUS_NAMES[x] for x in want]
+    edge_lon = grid["lon_first"] + 119 * grid["dlon"]
+    assert abs(refb["lon"][5] - edge_lon) * np.pi / 180 * gd.radii(52.0)[1] * np.cos(np.radians(52)) < 1e-8
     with pytest.raises(ValueError, match="dlon"):
         exhaustive_first_hit(heights, grid["lat_first"], grid["lon_first"], grid["dlat"], -1.0, s, l)
     with pytest.raises(ValueError, match="heights"):
@@ -391,7 +396,8 @@ def _compare_exact(ref, res, labels, what):
     bad = np.nonzero(hit_ref != hit_imp)[0]
     if bad.size:
         rows = [f"  ray {i} {labels[i]}: ref {STATUS_NAMES[ref['status'][i]]} r={ref['r'][i]:.6f} "
-                f"clearance={ref['clearance'][i]:.2e}; impl hit={hit_imp[i]} r={np.asarray(res.distance)[i]}"
+                f"clearance={ref['clearance'][i]:.2e} low outside first at r={ref['r_low_outside'][i]:.3f}; "
+                f"impl hit={hit_imp[i]} r={np.asarray(res.distance)[i]}"
                 for i in bad[:20]]
         pytest.fail(f"{what}: {bad.size} hit/no-hit disagreements of {hit_ref.size}:\n" + "\n".join(rows))
     m = hit_ref
@@ -472,7 +478,9 @@ def test_exact_matches_exhaustive(ci_suite, interp):
         dr = _compare_exact(ref, res, lab, f"exact/{interp}/{place}")
         _status_map_consistent(ref, res, f"exact/{interp}/{place}")
         total += len(s)
-        print(f"\nexact/{interp}/{place}: {len(s)} rays, {np.sum(ref['status'] == HIT)} hits, 0 disagreements, "
+        entering = np.sum((ref["status"] == HIT) & np.isfinite(ref["r_low_outside"]))
+        print(f"\nexact/{interp}/{place}: {len(s)} rays, {np.sum(ref['status'] == HIT)} hits "
+              f"({entering} after entering the DSM low from outside), 0 disagreements, "
               f"max |dr| {dr.max():.2e} m; reference {len(s) / t_ref:.0f} rays/s, implementation "
               f"{len(s) / t_imp:.0f} rays/s (under load)")
     assert total >= (14_000 if interp == "nearest" else 6_000)

@@ -41,8 +41,10 @@ Method
    clear of the surface with ``min(g_a, g_b) > K L^2 / 8`` cannot touch it
    (certificate). Segments that fail it ("grazing chords") are split in 4,
    level after level (the second pass), until certified or an earlier event
-   appears; after ``MAX_LEVELS`` levels (segment 4**-40 of a step) the ray is
-   flagged ``uncertain`` (a tangency within ~1e-12 m; none in the test scenes).
+   appears; after ``MAX_LEVELS`` levels (segment 4**-40 of a step), or when
+   more than ``MAX_SUS`` grazing segments of one ray remain at a level (a ray
+   running along a surface within rounding), the ray is flagged ``uncertain``
+   (a tangency within ~1e-12 m; none in the test scenes).
 5. The first event bracket is refined by quartering (a level also checks the
    certificate of the sub-segments before the new bracket) to ``TOL_R =
    1e-7`` m; the reported r is the upper end (a point that satisfies the hit
@@ -63,6 +65,10 @@ Choices where the contract is silent (documented here)
 * LEFT_DSM point: the first low point outside the area, i.e. the area edge
   crossing (or r_A when the ray is already outside there).
 * Global grids (ncols*dlon >= 360) are not supported (ValueError).
+* A ray that is low outside the area and then enters it and meets the
+  surface is a HIT (the contract's HIT is the smallest r over the area with
+  h <= H; LEFT_DSM only when there is no hit); ``r_low_outside`` tells which
+  hits did so (some airborne wall and grazing rays of the scenes).
 * Not searched: a ray below H_min OUTSIDE the area at r_C that re-enters the
   area further on while underground (below all terrain); it is reported
   LEFT_DSM, while the contract would call the underground entry a HIT.
@@ -90,6 +96,7 @@ STATUS_NAMES = {HIT: "HIT", NO_DATA: "NO_DATA", LEFT_DSM: "LEFT_DSM", MISS: "MIS
 STEP_MAX = 1.0  # m, the largest default step
 TOL_R = 1e-7  # m, final bracket length
 MAX_LEVELS = 40  # quartering levels of the second pass
+MAX_SUS = 64  # grazing segments followed per ray and level
 BLOCK = 256  # samples per block
 CHUNK = 1024  # rays per chunk
 
@@ -676,6 +683,17 @@ class _Chunk:
                 sray = np.concatenate(new_sray)
                 sa = _cat(new_sa)
                 sb = _cat(new_sb)
+                # a ray running along a surface within rounding would multiply its segments by 4 per
+                # level: keep its MAX_SUS earliest ones and call the ray uncertain
+                order = np.lexsort((sa["r"], sray))
+                so = sray[order]
+                start = np.r_[0, np.nonzero(so[1:] != so[:-1])[0] + 1]
+                rank = np.arange(so.size) - np.repeat(start, np.diff(np.r_[start, so.size]))
+                over = rank >= MAX_SUS
+                if over.any():
+                    uncertain[np.unique(so[over])] = True
+                    keep = order[~over]
+                    sray, sa, sb = sray[keep], _take(sa, keep), _take(sb, keep)
             else:
                 sray = np.zeros(0, np.int64)
         return uncertain
@@ -704,7 +722,9 @@ def exhaustive_first_hit(heights, lat_first, lon_first, dlat, dlon, s, l, a=WGS8
     [deg, lon in [-180, 180)], ``h`` geodetic height of p, ``H`` surface height
     there (hits), ``wall`` (bool), ``uncertain`` (bool), ``clearance`` (the
     smallest h - H over the test points before the event, a grazing measure),
-    ``ntest`` (test points per ray), and ``step`` the step used.
+    ``ntest`` (test points per ray), ``r_low_outside`` (the first low point
+    outside the area, also for rays that enter later and hit: NaN if none),
+    and ``step`` the step used.
     NaN for the point fields of MISS and INSIDE rays.
     """
     srf = Surface(heights, lat_first, lon_first, dlat, dlon, a, f, interpolation, nodata)
@@ -743,6 +763,7 @@ def exhaustive_first_hit(heights, lat_first, lon_first, dlat, dlon, s, l, a=WGS8
     uncertain = np.zeros(n, bool)
     clear = np.full(n, np.inf)
     ntest = np.zeros(n, np.int64)
+    r_low_out = np.full(n, np.nan)
     # inside check at r = 0
     p0 = _Eval(srf)(s, l, np.zeros(n))
     inside = p0["hit"]
@@ -759,6 +780,7 @@ def exhaustive_first_hit(heights, lat_first, lon_first, dlat, dlon, s, l, a=WGS8
         uncertain[idx] = unc
         clear[idx] = ch.clear
         ntest[idx] = ch.ntest
+        r_low_out[idx] = ch.left_r
         if ch.lo is not None:
             e = ch.has_ev
             status[idx[e]] = np.where(ch.hi["hit"][e], HIT, NO_DATA)
@@ -775,4 +797,4 @@ def exhaustive_first_hit(heights, lat_first, lon_first, dlat, dlon, s, l, a=WGS8
     lon = wrap_lon(np.degrees(lon))
     wall = (status == HIT) & (H_out - h > 1e-6) if srf.nearest else np.zeros(n, bool)
     return dict(status=status, r=r_out, p=p, lat=lat, lon=lon, h=h, H=H_out, wall=wall, uncertain=uncertain,
-                clearance=clear, ntest=ntest, step=step, hmax=srf.hmax, hmin=srf.hmin)
+                clearance=clear, ntest=ntest, r_low_outside=r_low_out, step=step, hmax=srf.hmax, hmin=srf.hmin)
