@@ -27,7 +27,9 @@ azimuth origin) the tests check the invariant rather than guess. Tolerances, and
   pole the mean of the adjacent row (a flat cap within half a pixel);
 * lat_detic: 1e-7 deg against the spheroid formula at the centre latitude (r_C may be the DEM
   at the centre or the cell's mean radius, up to ~1e-4 km off the spheroid: the foot of its
-  normal moves by < 1e-8 deg), and 1e-9 deg against SPICE recpgr at the implementation's own r_C;
+  normal moves by < 1e-8 deg), and 1e-8 deg against SPICE recpgr at the implementation's own r_C
+  (either reading: the exact conversion of r_C, or the spheroid formula at the centre); hence
+  zenith_detic within 1e-7 deg of the reference and of SPICE ilumin;
 * the frame: 1e-12 (the issue's figure); air mass: 1e-12 relative for the closed forms,
   1e-6 relative for Chapman (the issue's figure);
 * flux fraction: the implementation's cone (between its last selected and first rejected
@@ -449,11 +451,14 @@ def test_footprint_pairs_on_a_sphere(sphere_cells, sphere_fp):
     close(fp.emission, fr.angle_deg(np.asarray(fp.d), c.normal[k]), 1e-9, 1e-9)
     dev = fr.angle_deg(c.normal[k], fr.xyz(lat[k], lon[k]))
     assert np.all(np.abs(np.asarray(fp.emission) - ref["zenith"]) <= dev + 1e-9 + 1e-9 * ref["zenith"])
-    # selection (zeta = 0): exactly the cells above the horizon, boundary cells (1e-9) aside
+    # selection (zeta = 0): exactly the cells above the horizon; cells within the normals' largest
+    # departure from radial (+ 1e-7 deg) of it aside, since the implementer may define the horizon
+    # with the topographic normal
+    slack = float(np.max(fr.angle_deg(c.normal, fr.xyz(lat, lon)))) + 1e-7
     for j in range(len(SC)):
         everything = fr.sphere_pair(R0, SC[j, 0], SC[j, 1], R0 + SC[j, 2], lat, lon)
         want = everything["zenith"] < 90.0
-        margin = np.abs(everything["zenith"] - 90.0) > 1e-7
+        margin = np.abs(everything["zenith"] - 90.0) > slack
         got = np.zeros(lat.size, bool)
         got[k[s == j]] = True
         assert np.array_equal(got[margin], want[margin]), f"spacecraft {j}"
@@ -504,7 +509,7 @@ def test_solid_angle_notes_check(sphere_cells):
     assert below.size == 1
     om = float(np.asarray(fp.solid_angle)[below[0]])
     assert om == pytest.approx(3.4e-9 / 400.0 ** 2, rel=1e-9)
-    assert round(om, 16) == pytest.approx(2.13e-14, abs=5e-17)
+    assert om == pytest.approx(2.13e-14, abs=0.0051e-14)     # 2.125e-14: the notes round half up
     assert float(np.asarray(fp.nadir_angle)[below[0]]) < 1e-6
 
 
@@ -541,7 +546,7 @@ def test_spheroid_cells_16ppd(spheroid16, mars_kernels):
     rng = np.random.default_rng(13)
     pick = rng.choice(lat.size, 3000, replace=False)
     glat, glon, _ = sk.pgr_latlon(np.asarray(c.r)[pick], MARS_RE, MARS_F)
-    assert np.max(np.abs(glat - np.asarray(c.lat_detic)[pick])) < 1e-9
+    assert np.max(np.abs(glat - np.asarray(c.lat_detic)[pick])) < 1e-8
     assert np.max(np.abs(wrap180(glon - lon[pick]))) < 1e-9
     # the topographic normal: the spheroid's at the cell centre within 1e-6 rad (polar rows aside)
     nref = fr.spheroid_normal(fr.detic_from_centric(lat, MARS_F), lon)
@@ -567,16 +572,16 @@ def test_spheroid_footprint_vs_spice(spheroid16, mars_kernels):
     close(fp.nadir_angle, fr.angle_deg(d, R[s]), 1e-9, 1e-9)
     # zenith_detic against the spheroid normal at the exact areodetic latitude of the centre
     zd = fr.zenith_detic(R[s], rC, fr.detic_from_centric(lat[k], MARS_F), lon[k])
-    close(fp.zenith_detic, zd, 1e-9, 2e-8)
+    close(fp.zenith_detic, zd, 1e-9, 1e-7)
     # ... and against SPICE ilumin's emission angle at the same points
     rng = np.random.default_rng(17)
     pick = rng.choice(len(k), min(3000, len(k)), replace=False)
     e_spice = sk.ilumin_emission(rC[pick], et[s[pick]])
-    assert np.max(np.abs(np.asarray(fp.zenith_detic)[pick] - e_spice)) < 2e-8
+    assert np.max(np.abs(np.asarray(fp.zenith_detic)[pick] - e_spice)) < 1e-7
     # on a smooth spheroid the emission equals the areodetic zenith, within the normal's departure
     nref = fr.spheroid_normal(fr.detic_from_centric(lat[k], MARS_F), lon[k])
     dev = fr.angle_deg(np.asarray(c.normal)[k], nref)
-    assert np.all(np.abs(np.asarray(fp.emission) - zd) <= dev + 2e-8)
+    assert np.all(np.abs(np.asarray(fp.emission) - zd) <= dev + 1e-7)
     # position angle: bearing from SPICE's sub-spacecraft point (INTERCEPT: areocentric)
     _, slat, slon = sk.subpnt_latlon(et)
     b = fr.bearing(slat[s], slon[s], lat[k], lon[k])
@@ -643,15 +648,28 @@ def test_airmass_models():
     close(pi.airmass(zc, H=8.0, R=6400.0, model="chapman"), ref, 1e-6)
 
 
+@pytest.fixture(scope="module")
+def sphere_cells_fine():
+    if not all(hasattr(pi, n) for n in FP_NAMES):
+        pytest.skip(NOT_BUILT)
+    return pi.CellTable(sphere_dem(), cell_deg=0.25)
+
+
 @needs(*FP_NAMES)
+@pytest.mark.parametrize("sc_lat", [0.1, 60.1])
 @pytest.mark.parametrize("q", [0.5, 0.9])
-def test_flux_fraction_cone(q):
-    cells = pi.CellTable(sphere_dem(), cell_deg=0.25)
+def test_flux_fraction_cone(sphere_cells_fine, q, sc_lat):
+    """The cone that flux_fraction=q selects must hold q of the reference's continuous flux (R6,
+    weight per unit area (A/d^2) cos(e)^FLUX_COS_POWER) within 0.002, and its edge must be within
+    0.1 deg of the reference's cone. Measured with a discrete per-cell sum weighted by cell area
+    (0.25 deg cells, 400 km): within 5e-4 of q and 0.02 deg. Leaving the cell areas out shifts it by
+    0.013 (psi by 0.6 deg) at 60 N, which this test rejects: a cell's flux is proportional to its area."""
+    cells = sphere_cells_fine
     lat, lon = grid_centres(0.25)
-    R, v = sc_state(0.1, 100.1, 400.0, 0.0)
+    R, v = sc_state(sc_lat, 100.1, 400.0, 0.0)
     Rs = R0 + 400.0
     fp = pi.footprint(cells, R, v, area=A_DET, flux_fraction=q)
-    ref = fr.sphere_pair(R0, 0.1, 100.1, Rs, lat, lon)
+    ref = fr.sphere_pair(R0, sc_lat, 100.1, Rs, lat, lon)
     cos_psi = np.cos(np.radians(ref["nadir_angle"]))
     sel = np.zeros(lat.size, bool)
     sel[np.asarray(fp.cell)] = True
@@ -660,8 +678,8 @@ def test_flux_fraction_cone(q):
     hi_out = cos_psi[visible & ~sel].max()
     assert hi_out <= lo_in + 1e-12, "the selection is a nadir cone"
     F_in = fr.flux_fraction_sphere(lo_in, R0, Rs, FLUX_COS_POWER)
-    F_out = fr.flux_fraction_sphere(hi_out, R0, Rs, FLUX_COS_POWER)
-    assert F_out - 0.01 <= q <= F_in + 0.01 or abs(F_in - q) <= 0.01, (
-        f"cone holds {F_in:.4f} of the (A/d^2) cos^{FLUX_COS_POWER:g}(e) flux per unit area, asked {q}")
+    assert abs(F_in - q) <= 0.002, (
+        f"cone holds {F_in:.4f} of the (A/d^2) cos^{FLUX_COS_POWER:g}(e) flux per unit area, asked {q} "
+        "(are the cells weighted by their area?)")
     zeta_ref = fr.zeta_for_fraction(q, R0, Rs, FLUX_COS_POWER)
-    assert abs(math.degrees(math.acos(lo_in)) - math.degrees(math.acos(zeta_ref))) < 1.0
+    assert abs(math.degrees(math.acos(lo_in)) - math.degrees(math.acos(zeta_ref))) < 0.1
