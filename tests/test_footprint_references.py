@@ -280,10 +280,10 @@ class TestFluxFraction:
 
     @pytest.mark.parametrize("cos_power", [0.0, 1.0])
     def test_vs_brute_force_grid(self, cos_power):
-        # a 0.02 deg lat/lon grid over the cap of a spacecraft 400 km over the equator,
+        # a 0.05 deg lat/lon grid over the cap of a spacecraft 400 km over the equator,
         # every point weighted by its area (cos lat) and (A/d^2) cos(e)^p
         Rs = R0 + 400.0
-        step = 0.02
+        step = 0.05
         la = np.arange(-28 + step / 2, 28, step)
         LA, LO = np.meshgrid(la, la, indexing="ij")
         ref = fr.sphere_pair(R0, 0.0, 0.0, Rs, LA, LO % 360)
@@ -293,7 +293,7 @@ class TestFluxFraction:
         for q in (0.5, 0.9):
             zeta = fr.zeta_for_fraction(q, R0, Rs, cos_power)
             brute = np.sum(w[vis & (cos_psi >= zeta)]) / np.sum(w[vis])
-            assert brute == pytest.approx(q, abs=2e-4)
+            assert brute == pytest.approx(q, abs=1e-4)    # measured within 4.1e-5 (cap edge: 26.55 deg)
 
     def test_weightings_differ(self):
         """Measured at 400 km: the cone holding half the flux is psi = 43.65 deg for
@@ -319,6 +319,9 @@ class TestSpiceKernels:
         # J2000 TDB is 2000-01-01 11:58:55.816 UTC to within the periodic TDB term (< 2 ms)
         assert abs(sp.str2et("2000-01-01 11:58:55.816 UTC")) < 2e-3
         assert sp.str2et("2017-01-01 00:00:00 UTC") - sp.str2et("2016-12-31 23:59:59 UTC") == pytest.approx(2.0, abs=1e-6)
+        # 2002: TAI - UTC = 32 s, so TDB - UTC = 64.184 s plus the periodic term
+        assert sk.et_of("2002-02-28 23:58:55.816 UTC")[0] == pytest.approx(sk.EPOCH_ET, abs=2e-3)
+        assert sk.et_of([sk.EPOCH_ET, "2002-02-28 23:58:55.816 UTC"]).shape == (2,)
 
     def test_spk_round_trip(self, kernels):
         et = sk.EPOCH_ET + np.array([0.0, 17.3, 60.0, 1234.5, 7000.0, 21599.0])
@@ -328,6 +331,9 @@ class TestSpiceKernels:
         assert np.max(np.abs(s[:, 3:] - ref[:, 3:])) < 1e-9
         R, v = sk.states_iau_mars(et)
         assert np.linalg.norm(R[0]) - MARS_RE == pytest.approx(387.0, abs=1e-6)   # periapsis at the epoch
+        # the PCK's IAU_MARS, rotated here from its own formulas
+        mine = np.array([sk.iau_mars_matrix(t) @ x for t, x in zip(et, ref[:, :3])])
+        assert np.max(np.abs(R - mine)) < 1e-6
         alt = np.linalg.norm(sk.states_iau_mars(sk.EPOCH_ET + np.linspace(0, 7100, 300))[0], axis=1) - MARS_RE
         assert alt.min() == pytest.approx(387.0, abs=1e-3) and alt.max() == pytest.approx(450.0, abs=0.01)
 

@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["ODYSSEY", "MARS", "GM_MARS", "GM_SUN", "EPOCH_ET", "write_lsk", "write_pck", "kepler_state",
-           "odyssey_elements", "write_spk", "MarsKernels", "states_iau_mars", "states_j2000",
+           "odyssey_elements", "write_spk", "MarsKernels", "states_iau_mars", "states_j2000", "et_of", "iau_mars_matrix",
            "ilumin_emission", "subpnt_latlon", "pgr_latlon", "twovec_frame"]
 
 ODYSSEY = -53
@@ -189,6 +189,38 @@ class MarsKernels:
         self.close()
 
 
+def et_of(times) -> np.ndarray:
+    """ET (s past J2000 TDB) of UTC strings (via str2et and the loaded LSK); numbers pass as ET."""
+    import spiceypy as sp
+
+    if isinstance(times, (str, float, int, np.floating, np.integer)):
+        items = [times]
+    elif isinstance(times, np.ndarray):
+        items = times.ravel().tolist()
+    else:
+        items = list(times)
+    return np.array([sp.str2et(t) if isinstance(t, str) else float(t) for t in items])
+
+
+def iau_mars_matrix(et) -> np.ndarray:
+    """J2000 -> IAU_MARS rotation from the PCK's formulas, computed here (S2): Rz(W) Rx(90 - dec)
+    Rz(90 + ra), so that the PCK text can be checked against SPICE's pxform."""
+    d = float(et) / 86400.0
+    T = d / 36525.0
+    ra, dec = math.radians(317.68143 - 0.1061 * T), math.radians(52.88650 - 0.0609 * T)
+    W = math.radians((176.630 + 350.89198226 * d) % 360.0)
+
+    def rz(t):
+        c, s = math.cos(t), math.sin(t)
+        return np.array([[c, s, 0], [-s, c, 0], [0, 0, 1.0]])
+
+    def rx(t):
+        c, s = math.cos(t), math.sin(t)
+        return np.array([[1.0, 0, 0], [0, c, s], [0, -s, c]])
+
+    return rz(W) @ rx(math.pi / 2 - dec) @ rz(math.pi / 2 + ra)
+
+
 def states_j2000(et):
     """spkezr(-53, et, J2000, NONE, 499): (N, 6)."""
     import spiceypy as sp
@@ -198,11 +230,12 @@ def states_j2000(et):
 
 
 def states_iau_mars(et):
-    """Spacecraft R (N, 3) km and v (N, 3) km/s in IAU_MARS from the loaded kernels."""
+    """Spacecraft R (N, 3) km and v (N, 3) km/s in IAU_MARS from the loaded kernels; ``et`` are
+    ETs or UTC strings (``et_of``)."""
     import spiceypy as sp
 
     s = np.array([sp.spkezr(str(ODYSSEY), float(t), "IAU_MARS", "NONE", str(MARS))[0]
-                  for t in np.atleast_1d(et)])
+                  for t in et_of(et)])
     return s[:, :3], s[:, 3:]
 
 
