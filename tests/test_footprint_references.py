@@ -30,11 +30,14 @@ azimuth origin) the tests check the invariant rather than guess. Tolerances, and
   normal moves by < 1e-8 deg), and 1e-8 deg against SPICE recpgr at the implementation's own r_C
   (either reading: the exact conversion of r_C, or the spheroid formula at the centre); hence
   zenith_detic within 1e-7 deg of the reference and of SPICE ilumin;
-* the frame: 1e-12 (the issue's figure); air mass: 1e-12 relative for the closed forms,
-  1e-6 relative for Chapman (the issue's figure);
-* flux fraction: the implementation's cone (between its last selected and first rejected
-  cell) must hold q of the reference's continuous flux within 0.01 (0.25 deg cells; the
-  discrete sum over cells differs from the integral by the cell granularity).
+* tilted plane patch (8 ppd, 20 deg tilt): 10 x the departure of the bilinear DEM surface's
+  area-mean normal over the cell from the plane's normal (R5; ~9e-6 rad; a least-squares plane
+  through the samples gives the plane's normal to 1e-14, a radial normal is 0.35 rad off);
+* the frame: 1e-12 (the issue's figure); the GSH coordinates are the notes' -d = r_C - R in
+  it; air mass: 1e-12 relative for the closed forms, 1e-6 relative for Chapman (the issue's);
+* flux fraction: the implementation's cone must hold q of the reference's continuous flux
+  per unit area within 0.002 and its edge lie within 0.1 deg of the reference cone's (0.25 deg
+  cells, 400 km, at 0 and 60 N; an area-weighted cell sum is within 5e-4 and 0.02 deg).
 """
 
 from __future__ import annotations
