@@ -6,8 +6,15 @@
 !>   RAYS   text file, one ray per line: sx sy sz lx ly lz (blank and # lines skipped)
 !>   OUT    output file (default: standard output)
 !> One line per ray: index, status, px py pz, tx ty tz, tcx tcy tcz, scx scy scz,
-!> emission (degrees). NaN where a quantity does not apply. Exit code 0 on
-!> success, 1 on bad arguments or input, 2 when the DEM cannot be used.
+!> emission (degrees). NaN where a quantity does not apply.
+!> Exit codes:
+!>   0  success;
+!>   1  bad command line (argument count, a mode that is not an integer),
+!>      unreadable rays file or line, output file that exists or cannot be made;
+!>   2  zcalc_planet_intersect returned a status: the DEM cannot be used
+!>      (status 1-11, 13) or a mode is out of range (status 12); the message
+!>      names the status ("status 12").
+!> Every allocated array is freed on every exit path (valgrind-clean).
 program test_planet_intersect
   use, intrinsic :: iso_fortran_env, only: real64, error_unit, output_unit
   implicit none
@@ -42,6 +49,8 @@ program test_planet_intersect
   do
     read(u, '(a)', iostat=ios) line
     if (ios /= 0) exit
+    if (len_trim(line) == len(line)) call fail('rays file '//trim(rays_name)//': a line is longer than ' &
+                                               //trim(int_text(len(line) - 1))//' characters', 1)
     if (is_data(line)) n = n + 1
   end do
   allocate(s(3, n), l(3, n), p(3, n), t(3, n), tc(3, n), sc(3, n), emission(n), istat(n))
@@ -63,7 +72,11 @@ program test_planet_intersect
                               emission, istat, ierr)
   if (ierr /= 0) then
     write(arg, '(i0)') ierr
-    call fail('cannot use DEM '//trim(dem_name)//': status '//trim(arg)//' (see docs/legacy-interface.md)', 2)
+    if (ierr == 12) then
+      call fail('DEM_READ_MODE and STEP_MODE must be 0 or 1, got '//trim(int_text(read_mode))//' and ' &
+                //trim(int_text(step_mode))//': status 12 (see docs/status-codes.md)', 2)
+    end if
+    call fail('cannot use DEM '//trim(dem_name)//': status '//trim(arg)//' (see docs/status-codes.md)', 2)
   end if
 
   if (len_trim(out_name) > 0) then
@@ -77,8 +90,26 @@ program test_planet_intersect
     write(uout, '(i0, 1x, i0, 13(1x, es25.17e3))') k, istat(k), p(:, k), t(:, k), tc(:, k), sc(:, k), emission(k)
   end do
   if (uout /= output_unit) close(uout)
+  call release()
 
 contains
+
+  character(len=12) function int_text(i)
+    integer, intent(in) :: i
+    write(int_text, '(i0)') i
+  end function int_text
+
+  ! free the arrays before the program ends (every path, so valgrind sees no leak)
+  subroutine release()
+    if (allocated(s)) deallocate(s)
+    if (allocated(l)) deallocate(l)
+    if (allocated(p)) deallocate(p)
+    if (allocated(t)) deallocate(t)
+    if (allocated(tc)) deallocate(tc)
+    if (allocated(sc)) deallocate(sc)
+    if (allocated(emission)) deallocate(emission)
+    if (allocated(istat)) deallocate(istat)
+  end subroutine release
 
   logical function is_data(text)
     character(len=*), intent(in) :: text
@@ -91,6 +122,7 @@ contains
     character(len=*), intent(in) :: message
     integer, intent(in) :: code
     write(error_unit, '(a)') 'test_planet_intersect: '//message
+    call release()
     call exit(code)
   end subroutine fail
 
