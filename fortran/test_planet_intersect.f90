@@ -16,7 +16,7 @@
 !>      names the status ("status 12").
 !> Every allocated array is freed on every exit path (valgrind-clean).
 program test_planet_intersect
-  use, intrinsic :: iso_fortran_env, only: real64, error_unit, output_unit
+  use, intrinsic :: iso_fortran_env, only: real64, error_unit, output_unit, iostat_eor
   implicit none
   integer, parameter :: dp = real64
   character(len=4096) :: dem_name, rays_name, out_name, arg, line
@@ -47,17 +47,15 @@ program test_planet_intersect
   if (ios /= 0) call fail('cannot open rays file '//trim(rays_name), 1)
   n = 0
   do
-    read(u, '(a)', iostat=ios) line
+    call read_line(u, line, ios)
     if (ios /= 0) exit
-    if (len_trim(line) == len(line)) call fail('rays file '//trim(rays_name)//': a line is longer than ' &
-                                               //trim(int_text(len(line) - 1))//' characters', 1)
     if (is_data(line)) n = n + 1
   end do
   allocate(s(3, n), l(3, n), p(3, n), t(3, n), tc(3, n), sc(3, n), emission(n), istat(n))
   rewind(u)
   k = 0
   do
-    read(u, '(a)', iostat=ios) line
+    call read_line(u, line, ios)
     if (ios /= 0) exit
     if (.not. is_data(line)) cycle
     k = k + 1
@@ -93,6 +91,22 @@ program test_planet_intersect
   call release()
 
 contains
+
+  ! one line of the rays file into text; ios /= 0 at the end of the file; a
+  ! line that does not fit in text is an error (never read cut short)
+  subroutine read_line(unit, text, ios)
+    integer, intent(in) :: unit
+    character(len=*), intent(out) :: text
+    integer, intent(out) :: ios
+    integer :: nread
+    read(unit, '(a)', advance='no', iostat=ios, size=nread) text
+    if (ios == iostat_eor) then
+      ios = 0                              ! the whole line was read
+    else if (ios == 0) then
+      call fail('rays file '//trim(rays_name)//': a line is longer than ' &
+                //trim(int_text(len(text) - 1))//' characters', 1)
+    end if
+  end subroutine read_line
 
   character(len=12) function int_text(i)
     integer, intent(in) :: i
