@@ -17,8 +17,8 @@
 !>   ierr: 0 or a routine status code (12 for a mode out of range, 13 for
 !>   n < 0); when ierr /= 0 every output is NaN and istat is -1.
 !> The tangent point is the paper's construction (eqs. 55-58).
-!> Departure (docs/legacy-interface.md, "Table 1 quantities"): the paper's
-!> section 3 passes ppd, rmax, f, re in; here they are read from the `.hdr`.
+!> Departure (docs/legacy-interface.md, note L1): the paper's section 3
+!> passes ppd, rmax, f, re in; here they are read from the `.hdr`.
 subroutine zcalc_planet_intersect(n, s, l, demfile, dem_read_mode, step_mode, p, t, tc, sc, &
                                   emission, istat, ierr)
   use pi_kinds, only: dp
@@ -99,8 +99,8 @@ end subroutine zdem_read
 !> Interpolated radius at (lat, lon) in degrees from a grid in memory
 !> (the paper's zdem_radius, eqs. 2-12), with the paper's argument list.
 !>
-!> The paper's routine has no status argument. Reconstruction: r is NaN (the
-!> project's missing value; every valid radius is > 0 and finite) whenever
+!> The paper's routine has no status argument. Reconstruction (note L2): r is
+!> NaN (the project's missing value; every valid radius is > 0 and finite) whenever
 !> zdem_radius_status below reports an error: ppd < 1, nlon /= 360 ppd or
 !> nlat /= 180 ppd, a latitude or longitude that is not finite, |lat| > 90.
 !> Test it with `IF (R .NE. R)`, or call zdem_radius_status for the code.
@@ -198,7 +198,7 @@ subroutine zdem_radius_increment(demfile, lat, lon, r, ierr)
   call dem_close(dem)
 end subroutine zdem_radius_increment
 
-!> Open `demfile` once for many zdem_radius_handle calls (a reconstruction:
+!> Open `demfile` once for many zdem_radius_handle calls (note L3, a reconstruction:
 !> the paper's zdem_radius_increment has no handle). Reads and checks the
 !> header and the `.dem` size, reads both polar rows for the pole means, and
 !> keeps the `.dem` file open; everything needed later is stored in the

@@ -281,6 +281,9 @@ def test_the_runtime_flags_are_needed_and_pkg_config_agrees(tmp_path):
     pc = legacy_config.pc_file()
     assert pc.parent == legacy_config.pkg_config_path() and pc.parent.parent == pi.legacy_paths()["library"].parent
     assert _cli_flags("--pkg-config-path") == str(pc.parent)
+    none = subprocess.run([sys.executable, "-m", "planet_intersect.cli", "config"], capture_output=True, text=True,
+                          timeout=60)
+    assert none.returncode == 2 and "one of the arguments --libs --cflags --pkg-config-path is required" in none.stderr
     if shutil.which("pkg-config") is None:
         pytest.skip("pkg-config is not on PATH to compare its output")
     env = {"PATH": "/usr/bin:/bin", "PKG_CONFIG_PATH": str(pc.parent)}
