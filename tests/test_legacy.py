@@ -357,3 +357,27 @@ def test_handle_keeps_the_file_open_and_is_faster(tmp_path):
     print(f"zdem_radius_increment {float(per_call):.0f} calls/s, zdem_radius_handle {float(handle):.0f} calls/s, "
           f"ratio {ratio:.1f} (8 ppd, under load)")
     assert ratio > 5, ratio
+
+
+def test_legacy_config_reads_pc_files_like_pkg_config(tmp_path):
+    """Variables, ${pcfiledir}, comments, a folder with spaces; clear errors for a bad file."""
+    from planet_intersect import legacy_config
+
+    d = tmp_path / "with space" / "lib" / "pkgconfig"
+    d.mkdir(parents=True)
+    pc = d / "x.pc"
+    pc.write_text("# comment\nlibdir=${pcfiledir}/..\nother=${libdir}/sub # trailing\n\n"
+                  "Name: x\nLibs: -L${libdir} -lx -lm\nCflags: -I${other}\n")
+    fields = legacy_config._fields(pc)
+    args = legacy_config._normalise(shlex.split(fields["Libs"]))
+    assert args == ["-L" + str(tmp_path / "with space" / "lib"), "-lx", "-lm"]
+    assert shlex.split(fields["Cflags"]) == [f"-I{d}/../sub"]
+    pc.write_text("Libs: -L${nowhere}\n")
+    with pytest.raises(ValueError, match=r"x\.pc: undefined variable \$\{nowhere\}"):
+        legacy_config._fields(pc)
+    pc.write_text("a=${a}\n")
+    with pytest.raises(ValueError, match=r"undefined variable \$\{a\}"):          # used before it is defined
+        legacy_config._fields(pc)
+    pc.write_text("this is not a pc line\n")
+    with pytest.raises(ValueError, match="cannot read the line"):
+        legacy_config._fields(pc)

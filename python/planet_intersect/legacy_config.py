@@ -52,20 +52,21 @@ def pc_file() -> Path:
 def _fields(path: Path) -> dict:
     """Variables and keywords of a .pc file, ``${var}`` expanded as pkg-config does.
 
-    ``${pcfiledir}`` is the folder of the file. Raises ValueError naming the
-    file for an undefined variable or a variable that refers to itself.
+    ``${pcfiledir}`` is the folder of the file, shell-quoted so that a folder
+    with spaces stays one argument when the fields are split. Raises
+    ValueError naming the file for an undefined variable or a line that is
+    neither ``name=value`` nor ``Keyword: value``.
     """
-    variables = {"pcfiledir": str(path.parent)}
+    variables = {"pcfiledir": shlex.quote(str(path.parent))}
     fields = {}
 
-    def expand(value: str, depth: int = 0) -> str:
+    def expand(value: str) -> str:
+        # variables are stored expanded, so one pass suffices (and a variable
+        # can only use those defined above it, as in pkg-config)
         def one(m):
-            name = m.group(1)
-            if name not in variables:
-                raise ValueError(f"{path}: undefined variable ${{{name}}}")
-            if depth > 20:
-                raise ValueError(f"{path}: variable ${{{name}}} refers to itself")
-            return expand(variables[name], depth + 1)
+            if m.group(1) not in variables:
+                raise ValueError(f"{path}: undefined variable ${{{m.group(1)}}}")
+            return variables[m.group(1)]
         return re.sub(r"\$\{([A-Za-z0-9_.]+)\}", one, value)
 
     for line in path.read_text(encoding="utf-8").splitlines():
@@ -118,7 +119,10 @@ def link_flags() -> str:
 
     ``shlex.join(link_args())``: quoted for a POSIX shell, so it can be pasted
     after ``gfortran old.f`` (e.g. ``gfortran old.f $(planet-intersect config
-    --libs) -o old``). Raises as :func:`link_args`.
+    --libs) -o old``; when the install folder has spaces, ``$(...)`` splits
+    it whatever the quoting, as it does pkg-config's output: use
+    ``eval gfortran old.f $(planet-intersect config --libs)`` or
+    :func:`link_args`). Raises as :func:`link_args`.
     """
     return shlex.join(link_args())
 
