@@ -213,7 +213,6 @@ end subroutine zdem_radius_increment
 !> 11-12 re, 13-14 south pole mean, 15-16 north pole mean (REAL*8 bit
 !> patterns), 17 checksum of 1-16, 18-32 zero.
 subroutine zdem_handle_open(demfile, nh, handle, ierr)
-  use pi_kinds, only: dp
   use pi_dem, only: dem_t, dem_open
   use pi_status, only: stat_ok
   implicit none
