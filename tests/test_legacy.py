@@ -1,5 +1,6 @@
 """The legacy workflow: the compiled test_planet_intersect driver against intersect()."""
 
+import os
 import shlex
 import shutil
 import subprocess
@@ -251,9 +252,8 @@ def test_fortran77_program_links_with_the_printed_flags_only(tmp_path, rough):
     assert tag("VEC") == [["0.0", "0.0", "1.0", "340.0", "90.0"]]
 
 
-def test_the_runtime_flags_are_needed_and_pkg_config_agrees(tmp_path):
-    """Without the printed runtime libraries the link fails (the library does need OpenMP); pkg-config prints
-    the same flags as `planet-intersect config --libs`."""
+def test_the_runtime_flags_are_needed(tmp_path):
+    """Without the printed runtime libraries the link fails (the library does need OpenMP); with them it runs."""
     _need_gfortran()
     from planet_intersect import legacy_config
 
@@ -284,9 +284,24 @@ def test_the_runtime_flags_are_needed_and_pkg_config_agrees(tmp_path):
     none = subprocess.run([sys.executable, "-m", "planet_intersect.cli", "config"], capture_output=True, text=True,
                           timeout=60)
     assert none.returncode == 2 and "one of the arguments --libs --cflags --pkg-config-path is required" in none.stderr
+
+
+def test_pkg_config_prints_the_same_link_line(tmp_path):
+    """`pkg-config --libs planet-intersect-legacy` with the documented PKG_CONFIG_PATH: the same flags, and they link."""
+    _need_gfortran()
+    from planet_intersect import legacy_config
+
     if shutil.which("pkg-config") is None:
-        pytest.skip("pkg-config is not on PATH to compare its output")
-    env = {"PATH": "/usr/bin:/bin", "PKG_CONFIG_PATH": str(pc.parent)}
+        pytest.skip("pkg-config is not on PATH to compare its output (apt-get install pkg-config)")
+    (tmp_path / "tiny.f").write_text(
+        "      PROGRAM TINY\n"
+        "      DOUBLE PRECISION A(3), B(3), C(3)\n"
+        "      DATA A /1.D0, 0.D0, 0.D0/, B /0.D0, 1.D0, 0.D0/\n"
+        "      CALL ZCROSSP(A, B, C)\n"
+        "      WRITE(*,'(3F4.1)') C\n"
+        "      END\n")
+    args = legacy_config.link_args()
+    env = {"PATH": os.environ.get("PATH", "/usr/bin:/bin"), "PKG_CONFIG_PATH": _cli_flags("--pkg-config-path")}
     out = subprocess.run(["pkg-config", "--libs", "planet-intersect-legacy"], capture_output=True, text=True,
                          env=env, timeout=60)
     assert out.returncode == 0, out.stderr
@@ -294,6 +309,8 @@ def test_the_runtime_flags_are_needed_and_pkg_config_agrees(tmp_path):
     comp = subprocess.run(["gfortran", "-std=legacy", "tiny.f", *shlex.split(out.stdout), "-o", "tiny_pc"],
                           capture_output=True, text=True, cwd=tmp_path, timeout=120)
     assert comp.returncode == 0, comp.stderr
+    run = subprocess.run([str(tmp_path / "tiny_pc")], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0 and run.stdout.split() == ["0.0", "0.0", "1.0"]
 
 
 def test_handle_keeps_the_file_open_and_is_faster(tmp_path):
