@@ -6,10 +6,17 @@
 !>   RAYS   text file, one ray per line: sx sy sz lx ly lz (blank and # lines skipped)
 !>   OUT    output file (default: standard output)
 !> One line per ray: index, status, px py pz, tx ty tz, tcx tcy tcz, scx scy scz,
-!> emission (degrees). NaN where a quantity does not apply. Exit code 0 on
-!> success, 1 on bad arguments or input, 2 when the DEM cannot be used.
+!> emission (degrees). NaN where a quantity does not apply.
+!> Exit codes:
+!>   0  success;
+!>   1  bad command line (argument count, a mode that is not an integer),
+!>      unreadable rays file or line, output file that exists or cannot be made;
+!>   2  zcalc_planet_intersect returned a status: the DEM cannot be used
+!>      (status 1-11, 13) or a mode is out of range (status 12); the message
+!>      names the status ("status 12").
+!> Every allocated array is freed on every exit path (valgrind-clean).
 program test_planet_intersect
-  use, intrinsic :: iso_fortran_env, only: real64, error_unit, output_unit
+  use, intrinsic :: iso_fortran_env, only: real64, error_unit, output_unit, iostat_eor
   implicit none
   integer, parameter :: dp = real64
   character(len=4096) :: dem_name, rays_name, out_name, arg, line
@@ -40,7 +47,7 @@ program test_planet_intersect
   if (ios /= 0) call fail('cannot open rays file '//trim(rays_name), 1)
   n = 0
   do
-    read(u, '(a)', iostat=ios) line
+    call read_line(u, line, ios)
     if (ios /= 0) exit
     if (is_data(line)) n = n + 1
   end do
@@ -48,7 +55,7 @@ program test_planet_intersect
   rewind(u)
   k = 0
   do
-    read(u, '(a)', iostat=ios) line
+    call read_line(u, line, ios)
     if (ios /= 0) exit
     if (.not. is_data(line)) cycle
     k = k + 1
@@ -63,7 +70,11 @@ program test_planet_intersect
                               emission, istat, ierr)
   if (ierr /= 0) then
     write(arg, '(i0)') ierr
-    call fail('cannot use DEM '//trim(dem_name)//': status '//trim(arg)//' (see docs/legacy-interface.md)', 2)
+    if (ierr == 12) then
+      call fail('DEM_READ_MODE and STEP_MODE must be 0 or 1, got '//trim(int_text(read_mode))//' and ' &
+                //trim(int_text(step_mode))//': status 12 (see docs/status-codes.md)', 2)
+    end if
+    call fail('cannot use DEM '//trim(dem_name)//': status '//trim(arg)//' (see docs/status-codes.md)', 2)
   end if
 
   if (len_trim(out_name) > 0) then
@@ -77,8 +88,42 @@ program test_planet_intersect
     write(uout, '(i0, 1x, i0, 13(1x, es25.17e3))') k, istat(k), p(:, k), t(:, k), tc(:, k), sc(:, k), emission(k)
   end do
   if (uout /= output_unit) close(uout)
+  call release()
 
 contains
+
+  ! one line of the rays file into text; ios /= 0 at the end of the file; a
+  ! line that does not fit in text is an error (never read cut short)
+  subroutine read_line(unit, text, ios)
+    integer, intent(in) :: unit
+    character(len=*), intent(out) :: text
+    integer, intent(out) :: ios
+    integer :: nread
+    read(unit, '(a)', advance='no', iostat=ios, size=nread) text
+    if (ios == iostat_eor) then
+      ios = 0                              ! the whole line was read
+    else if (ios == 0) then
+      call fail('rays file '//trim(rays_name)//': a line is longer than ' &
+                //trim(int_text(len(text) - 1))//' characters', 1)
+    end if
+  end subroutine read_line
+
+  character(len=12) function int_text(i)
+    integer, intent(in) :: i
+    write(int_text, '(i0)') i
+  end function int_text
+
+  ! free the arrays before the program ends (every path, so valgrind sees no leak)
+  subroutine release()
+    if (allocated(s)) deallocate(s)
+    if (allocated(l)) deallocate(l)
+    if (allocated(p)) deallocate(p)
+    if (allocated(t)) deallocate(t)
+    if (allocated(tc)) deallocate(tc)
+    if (allocated(sc)) deallocate(sc)
+    if (allocated(emission)) deallocate(emission)
+    if (allocated(istat)) deallocate(istat)
+  end subroutine release
 
   logical function is_data(text)
     character(len=*), intent(in) :: text
@@ -91,6 +136,7 @@ contains
     character(len=*), intent(in) :: message
     integer, intent(in) :: code
     write(error_unit, '(a)') 'test_planet_intersect: '//message
+    call release()
     call exit(code)
   end subroutine fail
 

@@ -15,6 +15,7 @@ from ._status import DEMError, RayStatus, RAY_STATUS
 from .dem import DEM, read_header
 from .geometry import detector_los, spheroid_radius, ray_spheroid_intersection
 from .intersect import IntersectResult, intersect
+from . import legacy_config  # link flags of the legacy FORTRAN77 library
 
 __version__ = "0.1.0"
 
