@@ -82,10 +82,11 @@ def building_dsm(n=1000, seed=0, nblocks=None, hmin=3.0, hmax=150.0):
 
 
 def pushbroom_rays(n, lat_range, lon_range, altitude=600e3, max_off_nadir=30.0, seed=0,
-                   a=WGS84_A, f=WGS84_F):
+                   a=WGS84_A, f=WGS84_F, ground=None):
     """Rays of a pushbroom scanner at `altitude` looking 0..max_off_nadir deg off nadir.
 
-    Each ray aims at a random ground point (h = 0) of the given lat/lon box; the
+    Each ray aims at a random ground point of the given lat/lon box (at height
+    ``ground(lat, lon)`` when given, else 0); the
     satellite sits up-range of it across track (east or west), at the off-nadir
     angle drawn uniformly in [0, max_off_nadir] degrees (incidence from the
     spherical relation sin(i) = (R+H)/R sin(off-nadir)). Returns s, l (N, 3) ECR.
@@ -93,7 +94,7 @@ def pushbroom_rays(n, lat_range, lon_range, altitude=600e3, max_off_nadir=30.0, 
     rng = np.random.default_rng(seed)
     lat = rng.uniform(*lat_range, n)
     lon = rng.uniform(*lon_range, n)
-    g = geodetic_to_ecr(lat, lon, 0.0, a, f)
+    g = geodetic_to_ecr(lat, lon, 0.0 if ground is None else ground(lat, lon), a, f)
     east, _, up = local_frame(lat, lon)
     off = np.radians(rng.uniform(0.0, max_off_nadir, n))
     r = np.linalg.norm(g, axis=1)
