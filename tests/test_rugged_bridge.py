@@ -41,23 +41,33 @@ def ray_ellipsoid(s, l, a=WGS84_A, f=WGS84_F):
     return s + t[:, None] * l
 
 
-def bilinear_grid(heights, lat_first, lon_first, dlat, dlon):
+def bilinear_grid(heights, lat_first, lon_first, dlat, dlon, periodic=False):
     """H(lat, lon): bilinear interpolation between pixel centres (the contract's surface).
 
-    Written here independently of the bridge; longitudes taken modulo 360.
+    Written here independently of the bridge; longitudes taken modulo 360;
+    -inf (no surface) outside the rectangle of pixel centres. `periodic`: a
+    grid of ncols*dlon = 360 deg, whose last column meets the first.
     """
     h = np.asarray(heights, dtype=np.float64)
+    nc = h.shape[1]
 
     def H(lat, lon):
         u = (lat - lat_first) / dlat
         v = ((lon - lon_first) % 360.0) / dlon
         i = np.clip(np.floor(u).astype(int), 0, h.shape[0] - 2)
-        j = np.clip(np.floor(v).astype(int), 0, h.shape[1] - 2)
-        fu, fv = u - i, v - j
-        z = ((1 - fu) * ((1 - fv) * h[i, j] + fv * h[i, j + 1])
-             + fu * ((1 - fv) * h[i + 1, j] + fv * h[i + 1, j + 1]))
-        # no surface outside the rectangle of pixel centres
-        out = (u < 0) | (u > h.shape[0] - 1) | (v > h.shape[1] - 1)
+        if periodic:
+            j = np.floor(v).astype(int) % nc
+            j1 = (j + 1) % nc
+        else:
+            j = np.clip(np.floor(v).astype(int), 0, nc - 2)
+            j1 = j + 1
+        fu = u - i
+        fv = v - np.floor(v) if periodic else v - j
+        z = ((1 - fu) * ((1 - fv) * h[i, j] + fv * h[i, j1])
+             + fu * ((1 - fv) * h[i + 1, j] + fv * h[i + 1, j1]))
+        out = (u < 0) | (u > h.shape[0] - 1)
+        if not periodic:
+            out |= v > nc - 1
         return np.where(out, -np.inf, z)
 
     return H
@@ -285,6 +295,33 @@ def test_antimeridian(lon_first):
     _, lon_s, _ = ecr_to_geodetic(s)
     assert np.all(lon_s[80:100] < 0) and np.all(res["lon"][80:100] > 0)
     assert np.all(lon_s[100:] > 0) and np.all(res["lon"][100:] < 0)
+
+
+def test_global_grid_is_periodic_in_longitude():
+    """ncols*dlon = 360 deg: the cells between the last column and the first exist (wrap).
+
+    5 deg cells from -177.5 to 177.5 E, 60 S to 60 N, smooth km-high relief;
+    pushbroom rays aimed into the seam cell (177.5 .. 182.5 E) and elsewhere.
+    Measured: agreement with the root solve on the periodic bilinear surface
+    to ~1e-8 m; asserted 1e-6 m.
+    """
+    d = 5.0
+    lat = -60.0 + d * np.arange(25)[:, None]
+    lon = -177.5 + d * np.arange(72)[None, :]
+    heights = 1000 + 800 * np.sin(np.radians(lon)) * np.cos(np.radians(lat)) + 3 * lat
+    dsm = RuggedDSM(heights, -60.0, -177.5, d, d)
+    assert dsm.wrap
+    H = bilinear_grid(heights, -60.0, -177.5, d, d, periodic=True)
+    below = lambda la, lo: H(la, lo) - 5.0  # noqa: E731
+    s1, l1 = pushbroom_rays(40, (-50, 50), (177.6, 179.99), seed=18, ground=below)
+    s2, l2 = pushbroom_rays(40, (-50, 50), (-179.99, -177.6), seed=19, ground=below)
+    s3, l3 = pushbroom_rays(40, (-50, 50), (-170, 170), seed=20, ground=below)
+    s, l = np.vstack([s1, s2, s3]), np.vstack([l1, l2, l3])
+    res = dsm.intersect(s, l)
+    assert np.all(res["status"] == HIT) and np.all(res["inside"])
+    r = first_root(s, l, H, heights.max() + 10, heights.min() - 10, step=20.0)
+    dr = np.abs(res["r"] - r)
+    assert dr.max() < 1e-6, dr.max()
 
 
 def test_north_up_and_south_up_give_the_same_hits():
