@@ -264,13 +264,15 @@ def test_smooth_surface_first_hit():
     assert dr.max() < 1e-6, dr.max()
 
 
-@pytest.mark.parametrize("lon_first", [179.0, -181.0])
-def test_antimeridian(lon_first):
+@pytest.mark.parametrize("lon_first,d", [(179.0, 0.01), (-181.0, 0.01), (179.0, 0.0123)])
+def test_antimeridian(lon_first, d):
     """An extent 179 E .. 181 E (= -179) seen whole: hits on both sides and rays crossing it.
 
-    lon_first = 179 and -181 are the same grid; returned longitudes are in [-180, 180).
+    lon_first = 179 and -181 are the same grid; returned longitudes are in
+    [-180, 180). d = 0.01 makes a whole number of columns per turn (the
+    bridge's periodic lattice); 0.0123 does not (the nearest-copy tiles).
     """
-    nr, nc, d = 60, 200, 0.01  # 0.6 deg x 2 deg, cells ~1.1 km x 0.8 km
+    nr, nc = 60, 200  # 0.6 deg x 2 deg for d = 0.01, cells ~1.1 km x 0.8 km
     lat0 = 44.0
     lat = lat0 + d * np.arange(nr)[:, None]
     lon = (lon_first + d * np.arange(nc)[None, :]) % 360.0

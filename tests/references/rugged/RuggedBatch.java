@@ -9,14 +9,16 @@
 //   node (I, J) at latitude latS + I*dlat, longitude lonW + J*dlon;
 //   I in [0, nrows), J in [0, ncols) are the DSM's pixel centres, with the
 //   DSM's height; every other node of the lattice (outside the DSM) has the
-//   height `fill`. With `wrap` the lattice is periodic in longitude (a DSM
-//   whose ncols*dlon is one full turn): column J mod ncols.
+//   height `fill`. With period > 0 (a whole number of columns makes one
+//   turn: period*dlon = 2 pi) the lattice is periodic in longitude: node J is
+//   column J mod period, a DSM column when that is below ncols (period ==
+//   ncols: a global grid).
 // Tiles: R x C nodes, tile (ti, tj) holds nodes I0 .. I0+R-1 and
 //   J0 .. J0+C-1 with I0 = ti*(R-1) - margin, J0 = tj*(C-1) - margin, so that
 //   neighbouring tiles share one row / column (Rugged's overlapping tiles).
 //   A tile is built around the longitude Rugged asks for, which may lie
-//   outside [-pi, pi): the copy of the DSM nearest to it (shifted by a whole
-//   number of turns) is used.
+//   outside [-pi, pi). Without a period, the copy of the DSM nearest to it
+//   (shifted by a whole number of turns) is used.
 import org.hipparchus.geometry.euclidean.threed.Vector3D;
 import org.orekit.frames.Frame;
 import org.orekit.frames.Transform;
@@ -45,18 +47,17 @@ public final class RuggedBatch {
     /** Tile updater serving the lattice described at the top of this file. */
     static final class GridUpdater implements TileUpdater {
         final double[] h;  // south-up, row-major nrows x ncols
-        final int nrows, ncols, rows, cols, margin;
+        final int nrows, ncols, rows, cols, margin, period;
         final double latS, lonW, dlat, dlon, fill;
-        final boolean wrap;
         long tilesBuilt = 0;
 
         GridUpdater(double[] h, int nrows, int ncols, double latS, double lonW,
                     double dlat, double dlon, double fill, int rows, int cols,
-                    int margin, boolean wrap) {
+                    int margin, int period) {
             this.h = h; this.nrows = nrows; this.ncols = ncols;
             this.latS = latS; this.lonW = lonW; this.dlat = dlat; this.dlon = dlon;
             this.fill = fill; this.rows = rows; this.cols = cols;
-            this.margin = margin; this.wrap = wrap;
+            this.margin = margin; this.period = period;
         }
 
         /** First lattice index of the tile holding coordinate x (rad) with
@@ -78,7 +79,7 @@ public final class RuggedBatch {
                 throw new IllegalArgumentException("tile requested at NaN latitude/longitude");
             }
             double base = lonW;
-            if (!wrap) {  // the copy of the DSM nearest to the requested longitude
+            if (period <= 0) {  // the copy of the DSM nearest to the requested longitude
                 double centre = lonW + 0.5 * (ncols - 1) * dlon;
                 base += 2 * Math.PI * Math.rint((longitude - centre) / (2 * Math.PI));
             }
@@ -90,7 +91,7 @@ public final class RuggedBatch {
                 boolean rowIn = ii >= 0 && ii < nrows;
                 for (int c = 0; c < cols; c++) {
                     long jj = j0 + c;
-                    if (wrap) { jj = Math.floorMod(jj, (long) ncols); }
+                    if (period > 0) { jj = Math.floorMod(jj, (long) period); }
                     boolean in = rowIn && jj >= 0 && jj < ncols;
                     tile.setElevation(r, c, in ? h[(int) (ii * ncols + jj)] : fill);
                 }
@@ -101,7 +102,7 @@ public final class RuggedBatch {
 
     public RuggedBatch(double[] heights, int nrows, int ncols, double latS, double lonW,
                        double dlat, double dlon, double fill, int rows, int cols, int margin,
-                       boolean wrap, double a, double f, int maxCachedTiles) {
+                       int period, double a, double f, int maxCachedTiles) {
         if (heights.length != (long) nrows * ncols) {
             throw new IllegalArgumentException("heights has " + heights.length
                                                + " values, expected nrows*ncols");
@@ -111,7 +112,7 @@ public final class RuggedBatch {
         Frame body = new Frame(Frame.getRoot(), Transform.IDENTITY, "planet-intersect body", true);
         this.ellipsoid = new ExtendedEllipsoid(a, f, body);
         this.updater = new GridUpdater(heights, nrows, ncols, latS, lonW, dlat, dlon, fill,
-                                       rows, cols, margin, wrap);
+                                       rows, cols, margin, period);
         // overlapping tiles (Rugged's zipper tiles are for seamless DEMs)
         this.algorithm = new DuvenhageAlgorithm(updater, maxCachedTiles, false, true);
     }

@@ -38,10 +38,13 @@ What Rugged sees (the grid of ``../shared/DESIGN.md`` section 8)
   of up to ``tile_size - 2*margin`` nodes each way lies in one tile with a
   ring of ``margin`` fill nodes around it.
 * Longitudes: a tile is built around the longitude Rugged asks for, which may
-  be below -180 deg or above 180 deg; the DSM copy nearest to it (shifted by
-  whole turns) is used, so an extent crossing the antimeridian is seen whole.
-  A grid whose ``ncols*dlon`` is a full turn is periodic (column ``J mod
-  ncols``), with no fill in longitude.
+  be below -180 deg or above 180 deg, so an extent crossing the antimeridian
+  is seen whole. When a whole number K of columns makes a full turn
+  (``K*dlon = 360`` to 1e-9), the lattice is periodic: node J is column
+  ``J mod K``, a DSM column when below ``ncols`` (K = ncols: a global grid,
+  with no fill in longitude). Otherwise the DSM copy nearest to the requested
+  longitude (shifted by whole turns) is used, and tiles are kept narrower
+  than half the gap between the DSM and its next copy.
 
 Limitation of Rugged to keep in mind: ``intersection`` takes the maximum
 height of the tile under the ray's bare-ellipsoid point to find where the ray
@@ -313,6 +316,10 @@ class RuggedDSM:
         if span > 360 * (1 + 1e-12):
             raise ValueError(f"ncols*dlon = {span} deg exceeds a full turn")
         wrap = abs(span - 360) <= 360e-12
+        k = int(round(360.0 / dlon))
+        period = k if abs(k * dlon - 360.0) <= 360e-9 and k >= ncols else 0
+        if wrap:
+            period = ncols
         margin = int(margin)
         if margin < 0:
             raise ValueError(f"margin must be >= 0, got {margin}")
@@ -337,10 +344,11 @@ class RuggedDSM:
         self.a, self.f = a, f
         self.fill = fill
         self.wrap = wrap
+        self.period = period
         self.margin = margin
         rows = min(tile_size, nrows + 2 * margin)
         cols = min(tile_size, ncols + 2 * margin)
-        if not wrap:  # a tile never reaches the next copy of the DSM around the planet
+        if period == 0:  # a tile never reaches the next copy of the DSM around the planet
             room = int(np.floor((360.0 - span) / 2 / dlon)) + 1
             cols = max(3, min(cols, room))
         self.tile_rows, self.tile_cols = max(rows, 3), max(cols, 3)
@@ -350,7 +358,7 @@ class RuggedDSM:
         self._java = cls(self._heights_j, nrows, ncols,
                          np.radians(self.lat_south), np.radians(self.lon_west),
                          np.radians(self.dlat_abs), np.radians(dlon), fill,
-                         self.tile_rows, self.tile_cols, margin, wrap, a, f, max_cached_tiles)
+                         self.tile_rows, self.tile_cols, margin, period, a, f, max_cached_tiles)
         self.last_timing: dict | None = None
 
     # ------------------------------------------------------------------
