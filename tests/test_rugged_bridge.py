@@ -416,3 +416,17 @@ def test_bad_inputs_name_the_argument():
         dsm.intersect(np.full((1, 3), 7e6), np.zeros((1, 3)))
     with pytest.raises(ValueError, match="s has non-finite"):
         dsm.intersect(np.array([[np.nan, 0, 7e6]]), np.array([[0, 0, -1.0]]))
+
+
+def test_rays_per_second_times_the_java_loop():
+    """rays_per_second: N / median of the timed repeats, after the warm-up batches."""
+    dsm = RuggedDSM(np.zeros((NR, NC)), LAT0, LON0, D, D)
+    lat_r, lon_r = box()
+    s, l = pushbroom_rays(200, lat_r, lon_r, seed=22)
+    rps = dsm.rays_per_second(s, l, warmup=1, repeats=3)
+    t = dsm.last_timing
+    assert t["n"] == 200 and t["warmup"] == 1 and t["times"].shape == (3,)
+    assert np.all(t["times"] > 0)
+    assert rps == pytest.approx(200 / np.median(t["times"]), rel=1e-12)
+    with pytest.raises(ValueError, match="repeats"):
+        dsm.rays_per_second(s, l, warmup=0, repeats=0)

@@ -46,13 +46,21 @@ What Rugged sees (the grid of ``../shared/DESIGN.md`` section 8)
   longitude (shifted by whole turns) is used, and tiles are kept narrower
   than half the gap between the DSM and its next copy.
 
-Limitation of Rugged to keep in mind: ``intersection`` takes the maximum
-height of the tile under the ray's bare-ellipsoid point to find where the ray
-enters the terrain, and only raises it when that entry lies in another tile.
-A ray that crosses a taller tile before reaching that height over the lower
-one is not examined there. With one tile over the whole DSM plus ``margin``
-this only concerns rays whose ellipsoid point lies more than ``margin`` cells
-outside the DSM.
+Limitations of Rugged to keep in mind (its answers, reported as they are):
+
+* ``intersection`` starts from the ray's point on the bare ellipsoid (h = 0):
+  a ray that never descends to h = 0 (near-horizontal rays, rays pointing up)
+  is an ERROR ("line-of-sight does not reach ground") even if it meets a
+  building first; a ray starting below the surface is an ERROR ("enters the
+  Digital Elevation Model behind spacecraft") -- Rugged's "inside" answer.
+* It takes the maximum height of the tile under that ellipsoid point to find
+  where the ray enters the terrain, and only raises it when that entry lies in
+  another tile. A ray that crosses a taller tile before reaching that height
+  over the lower one is not examined there. With one tile over the whole DSM
+  plus ``margin`` this only concerns rays whose ellipsoid point lies more than
+  ``margin`` cells outside the DSM.
+* Nothing here bounds Rugged's own loops; no ray of the tests or the
+  benchmark has stalled with overlapping tiles.
 """
 
 from __future__ import annotations
@@ -220,8 +228,14 @@ def _finite_scalar(name: str, value) -> float:
 
 
 def _rays(s, l):
-    s = np.asarray(s, dtype=np.float64)
-    l = np.asarray(l, dtype=np.float64)
+    try:
+        s = np.asarray(s, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"s must be an array of real numbers: {exc}") from exc
+    try:
+        l = np.asarray(l, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"l must be an array of real numbers: {exc}") from exc
     if s.ndim == 1:
         s = s[None, :]
     if l.ndim == 1:
@@ -290,6 +304,8 @@ class RuggedDSM:
             raise TypeError(f"heights must be real numbers, got dtype {h.dtype}")
         h = h.astype(np.float64)
         nrows, ncols = h.shape
+        if nrows * ncols > 2**31 - 1:
+            raise ValueError(f"heights has {nrows * ncols} values, more than a Java array holds (2**31 - 1)")
         if nrows < 2 or ncols < 2:
             raise ValueError(f"heights needs at least 2 rows and 2 columns for Rugged's bilinear cells, got {h.shape}")
         if not np.all(np.isfinite(h)):
