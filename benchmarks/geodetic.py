@@ -1,0 +1,216 @@
+#!/usr/bin/env python3
+"""Benchmark of the geodetic DSM system (Shin & Park, issue 11).
+
+    ./dev bench --geodetic --quick    # small scene, a minute; CI runs it (asserts nothing about speed)
+    ./dev bench --geodetic            # the issue's scenes: 2,048 x 2,048 1 m building DSM, global Earth grid
+
+Scenes (planet_intersect.synthetic_dsm): a 1 m building DSM on the Jacksboro
+3-arc-second base DEM (matplotlib's sample data, heights above the geoid plus a
+constant N = -32 m), viewed by a pushbroom scan from 500-700 km at 0-30 deg off
+nadir and by an aircraft 1-3 km up at 10-45 deg elevation; and the global
+ETOPO20 grid of ../shared/data (20', heights above sea level taken as above
+WGS-84), viewed from orbit. Methods on the same rays, each measurement in its
+own process (its peak memory is its own) after an untimed warm-up call: the
+paper's ray following, the conventional iterative tracing, the exact mode (one
+and two threads), Orekit Rugged's Duvenhage algorithm (its Java batch loop
+timed after JIT warm-up), and the closed-form ray-ellipsoid intersection (the
+floor). rays/s from the median call. Results: benchmarks/results/geodetic*.{json,md}.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parent
+SHARED = Path(os.environ.get("PI_SHARED_DATA", REPO.parent / "shared" / "data"))
+ETOPO = SHARED / "earth_etopo20"
+
+
+def etopo20() -> dict | None:
+    """The ETOPO20 grid as a global DSM grid (1080 unique columns, south row first)."""
+    if not (ETOPO / "etopo20data.gz").exists():
+        return None
+    with gzip.open(ETOPO / "etopo20data.gz", "rt") as fh:
+        z = np.loadtxt(fh)[:, :1080]
+    with gzip.open(ETOPO / "etopo20lats.gz", "rt") as fh:
+        lats = np.loadtxt(fh)
+    with gzip.open(ETOPO / "etopo20lons.gz", "rt") as fh:
+        lons = np.loadtxt(fh)
+    from planet_intersect.geodetic import WGS84_A, WGS84_F
+    return dict(heights=z, lat_first=float(lats[0]), lon_first=float(lons[0]), dlat=float(lats[1] - lats[0]),
+                dlon=float(lons[1] - lons[0]), a=WGS84_A, f=WGS84_F)
+
+
+def make_scene(name: str, n: int, nrays: int):
+    """(grid dict, s, l) of a named scene."""
+    from planet_intersect import synthetic_dsm as sd
+
+    if name in ("buildings-pushbroom", "buildings-airborne"):
+        grid = sd.building_scene(n=n, seed=11)
+        grid.pop("roof_id")
+        if name.endswith("pushbroom"):
+            s, l = sd.pushbroom_rays(grid, nrays, seed=3)
+        else:
+            s, l = sd.airborne_rays(grid, nrays, seed=4)
+        return grid, s, l
+    if name == "etopo20-pushbroom":
+        grid = etopo20()
+        if grid is None:
+            raise FileNotFoundError(f"{ETOPO}: no ETOPO20 grid")
+        rng = np.random.default_rng(7)
+        from planet_intersect.geodetic import geodetic_to_ecef
+        lat = np.degrees(np.arcsin(rng.uniform(-0.97, 0.97, nrays)))
+        lon = rng.uniform(-180, 180, nrays)
+        target = geodetic_to_ecef(lat, lon, np.zeros(nrays))
+        s, l = sd._from_above(target, lat, lon, rng.uniform(500e3, 700e3, nrays), rng.uniform(0, 30, nrays),
+                              rng.uniform(0, 2 * np.pi, nrays))
+        return grid, s, l
+    raise ValueError(name)
+
+
+def peak_rss_mb() -> float:
+    try:
+        return int(Path("/proc/self/status").read_text().split("VmHWM:")[1].split()[0]) / 1024.0
+    except (OSError, IndexError):
+        return float("nan")
+
+
+def ellipsoid_floor(s, l, a, b):
+    """Closed-form first intersection with the bare ellipsoid (vectorised NumPy)."""
+    w = np.array([1 / a, 1 / a, 1 / b])
+    S, L = s * w, l * w
+    A = np.einsum("ij,ij->i", L, L)
+    B = np.einsum("ij,ij->i", S, L)
+    C = np.einsum("ij,ij->i", S, S) - 1
+    disc = B * B - A * C
+    t = (-B - np.sqrt(np.maximum(disc, 0))) / A
+    return np.where(disc >= 0, t, np.nan)
+
+
+def measure(spec: dict) -> dict:
+    """One (scene, method) measurement in this process."""
+    import planet_intersect as pi
+
+    grid, s, l = make_scene(spec["scene"], spec["n"], spec["nrays"])
+    method, threads = spec["method"], 1
+    if method.endswith("@2"):
+        method, threads = method[:-2], 2
+    out = {"rays": len(s)}
+    dsm = pi.GeodeticDSM.from_array(grid["heights"], grid["lat_first"], grid["lon_first"], grid["dlat"],
+                                    grid["dlon"], a=grid["a"], f=grid["f"])
+    if method == "rugged":
+        sys.path.insert(0, str(REPO / "tests"))
+        from references.rugged.bridge import RuggedDSM, rugged_available
+        ok, why = rugged_available()
+        if not ok:
+            return {"error": f"Rugged not available: {why}"}
+        rug = RuggedDSM(grid["heights"], grid["lat_first"], grid["lon_first"], grid["dlat"], grid["dlon"],
+                        a=grid["a"], f=grid["f"])
+        rps = rug.rays_per_second(s, l, warmup=3, repeats=5)
+        res = rug.intersect(s, l)
+        out.update(rays_per_second=rps, steps_per_ray=float("nan"), hits=int(np.sum(res["hit"])),
+                   peak_rss_mb=peak_rss_mb())
+        return out
+    if method == "exact":
+        dsm.pyramid()                           # built once per DSM and cached: not ray time
+    times, warm, steps, hits = [], True, float("nan"), 0
+    while True:
+        t0 = time.perf_counter()
+        if method == "floor":
+            ellipsoid_floor(s, l, grid["a"], grid["a"] * (1 - grid["f"]))
+        else:
+            res = pi.intersect(dsm, s, l, method=method, threads=threads)
+            steps, hits = float(np.mean(res.nsteps)), int(np.sum(res.hit))
+        dt = time.perf_counter() - t0
+        if warm:
+            warm = False
+            continue
+        times.append(dt)
+        if sum(times) > spec["min_seconds"] or len(times) >= 200:
+            break
+    q25, med, q75 = np.percentile(times, [25, 50, 75])
+    out.update(rays_per_second=len(s) / med, rays_per_second_q25_q75=[len(s) / q75, len(s) / q25],
+               calls=len(times), steps_per_ray=steps, hits=hits, peak_rss_mb=peak_rss_mb())
+    return out
+
+
+def run_isolated(spec: dict) -> dict:
+    proc = subprocess.run([sys.executable, __file__, "--one", json.dumps(spec)], capture_output=True, text=True)
+    if proc.returncode != 0:
+        return {"error": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else f"exit {proc.returncode}"}
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+METHODS = ["following", "iterative", "exact", "exact@2", "rugged", "floor"]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="a 512 x 512 scene and 2,000 rays (CI)")
+    ap.add_argument("--geodetic", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--full", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--one", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.one:
+        print(json.dumps(measure(json.loads(args.one))))
+        return 0
+    if args.quick:
+        n, nrays, min_s, scenes = 512, 2000, 0.3, ["buildings-pushbroom"]
+    else:
+        n, nrays, min_s = 2048, 20000, 2.0
+        scenes = ["buildings-pushbroom", "buildings-airborne", "etopo20-pushbroom"]
+    rows = []
+    for sc in scenes:
+        for m in METHODS:
+            spec = dict(scene=sc, method=m, n=n, nrays=nrays, min_seconds=min_s)
+            r = run_isolated(spec)
+            r.update(scene=sc, method=m)
+            rows.append(r)
+            rps = r.get("rays_per_second")
+            print(f"{sc:22s} {m:10s} " + (f"{rps:12,.0f} rays/s  steps {r.get('steps_per_ray', float('nan')):8.1f}  "
+                                          f"hits {r.get('hits')}  peak {r.get('peak_rss_mb', float('nan')):7.0f} MB"
+                                          if rps else r.get("error", "?")), flush=True)
+    machine = dict(machine=platform.machine(), system=platform.system(), python=platform.python_version(),
+                   cores=os.cpu_count(), date=time.strftime("%Y-%m-%d"))
+    name = "geodetic-quick" if args.quick else "geodetic"
+    out = HERE / "results"
+    out.mkdir(exist_ok=True)
+    (out / f"{name}.json").write_text(json.dumps(dict(machine=machine, rows=rows), indent=1))
+    (out / f"{name}.md").write_text(markdown(rows, machine))
+    print(f"wrote {out / (name + '.md')}")
+    return 0
+
+
+def markdown(rows, machine) -> str:
+    lines = [f"# Geodetic DSM benchmark ({machine['date']}, {machine['machine']}, {machine['cores']} cores, "
+             f"Python {machine['python']})", "",
+             "| scene | method | rays/s | × following | × Rugged | steps/ray | hits | peak RSS (MB) |",
+             "|---|---|---|---|---|---|---|---|"]
+    by = {(r["scene"], r["method"]): r for r in rows}
+    for r in rows:
+        rps = r.get("rays_per_second")
+        if not rps:
+            lines.append(f"| {r['scene']} | {r['method']} | {r.get('error', '?')} | | | | | |")
+            continue
+        f = by.get((r["scene"], "following"), {}).get("rays_per_second")
+        g = by.get((r["scene"], "rugged"), {}).get("rays_per_second")
+        lines.append(f"| {r['scene']} | {r['method']} | {rps:,.0f} | {rps / f:.1f} | " if f else
+                     f"| {r['scene']} | {r['method']} | {rps:,.0f} | | ")
+        lines[-1] += (f"{rps / g:.1f} | " if g else " | ") + \
+            f"{r.get('steps_per_ray', float('nan')):.1f} | {r.get('hits', '')} | {r.get('peak_rss_mb', float('nan')):.0f} |"
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,178 @@
+"""Deterministic geodetic surface models and ray sets for benchmarks, examples
+and the image simulation (Shin & Park's experiment: buildings on a coarse base
+DEM).
+
+* :func:`jacksboro_base` — the 3-arc-second DEM of the Jacksboro fault
+  (Tennessee) that matplotlib ships as sample data: a real Earth base DEM,
+  heights above the geoid in metres on a geodetic grid.
+* :func:`building_scene` — a 1 m building DSM: the base DEM resampled
+  bilinearly to 1 m cells plus rectangular blocks 3-150 m tall, one-cell towers
+  and courtyards (ring buildings), heights above WGS-84.
+* :func:`pushbroom_rays`, :func:`airborne_rays` — lines of sight from a 500-700 km
+  orbit at 0-30 deg off nadir, and from an aircraft at low elevation angles.
+
+Everything is seeded: the same arguments give the same arrays.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .geodetic import WGS84_A, WGS84_F, geodetic_to_ecef
+
+__all__ = ["jacksboro_base", "building_scene", "pushbroom_rays", "airborne_rays", "metre_steps",
+           "JACKSBORO_GEOID"]
+
+#: Geoid undulation (EGM96) near the Jacksboro DEM, metres: N = -32 m over the
+#: 0.3-degree area to within a metre; applied as a constant (h = H + N).
+JACKSBORO_GEOID = -32.0
+
+
+def jacksboro_base() -> dict:
+    """The Jacksboro fault DEM (matplotlib sample data) as a DSM grid.
+
+    Returns dict(heights, lat_first, lon_first, dlat, dlon, geoid): heights
+    above the geoid (m) with row 0 in the north (dlat < 0), pixel centres;
+    ``geoid`` the constant undulation to add for heights above WGS-84.
+    """
+    from matplotlib import cbook
+
+    d = cbook.get_sample_data("jacksboro_fault_dem.npz")
+    z = np.asarray(d["elevation"], dtype=np.float64)
+    step = float(d["dx"])
+    # the file's 'ymin' is the northern edge (its rows run north to south)
+    north, west = float(d["ymin"]), float(d["xmin"])
+    return dict(heights=z, lat_first=north - step / 2, lon_first=west + step / 2, dlat=-step, dlon=step,
+                geoid=JACKSBORO_GEOID)
+
+
+def metre_steps(lat_deg: float, cell: float = 1.0, a: float = WGS84_A, f: float = WGS84_F) -> tuple[float, float]:
+    """(dlat, dlon) in degrees that make cells ``cell`` metres on a side at latitude
+    ``lat_deg`` (meridional and prime-vertical radii of curvature)."""
+    e2 = f * (2 - f)
+    s = np.sin(np.radians(lat_deg))
+    w = np.sqrt(1 - e2 * s * s)
+    m_radius = a * (1 - e2) / w ** 3
+    n_radius = a / w
+    return float(np.degrees(cell / m_radius)), float(np.degrees(cell / (n_radius * np.cos(np.radians(lat_deg)))))
+
+
+def _bilinear(base: dict, lat: np.ndarray, lon: np.ndarray) -> np.ndarray:
+    z = base["heights"]
+    y = (lat - base["lat_first"]) / base["dlat"]
+    x = (lon - base["lon_first"]) / base["dlon"]
+    y = np.clip(y, 0, z.shape[0] - 1 - 1e-9)
+    x = np.clip(x, 0, z.shape[1] - 1 - 1e-9)
+    i, j = np.floor(y).astype(int), np.floor(x).astype(int)
+    fy, fx = y - i, x - j
+    return ((1 - fy) * ((1 - fx) * z[i, j] + fx * z[i, j + 1]) + fy * ((1 - fx) * z[i + 1, j] + fx * z[i + 1, j + 1]))
+
+
+def building_scene(n: int = 2048, seed: int = 0, lat0: float = 36.60, lon0: float = -84.30,
+                   nblocks: int | None = None, towers: int | None = None, courtyards: int | None = None,
+                   base: str = "jacksboro") -> dict:
+    """A 1 m building DSM of n x n cells, heights above WGS-84 (m).
+
+    The base terrain is the Jacksboro DEM resampled bilinearly to 1 m cells
+    (``base="jacksboro"``) plus its geoid undulation, or flat (``base="flat"``,
+    height 0). On it: ``nblocks`` rectangular blocks (5-60 m a side, 3-150 m
+    tall, flat roofs at base + height), ``towers`` one-cell towers (20-150 m)
+    and ``courtyards`` ring buildings (an open middle). Row 0 is in the north
+    (dlat < 0). Returns dict(heights, lat_first, lon_first, dlat, dlon, a, f,
+    roof_id) with ``roof_id[i, j]`` = 0 for ground, else the building's number.
+    """
+    rng = np.random.default_rng(seed)
+    dlat, dlon = metre_steps(lat0)
+    lat_first, lon_first = lat0 + (n - 1) * dlat, lon0          # north-west pixel centre
+    lats = lat_first - np.arange(n) * dlat
+    lons = lon_first + np.arange(n) * dlon
+    if base == "jacksboro":
+        b = jacksboro_base()
+        la, lo = np.meshgrid(lats, lons, indexing="ij")
+        ground = _bilinear(b, la, lo) + b["geoid"]
+    elif base == "flat":
+        ground = np.zeros((n, n))
+    else:
+        raise ValueError(f"base must be 'jacksboro' or 'flat', got {base!r}")
+    h = ground.copy()
+    roof = np.zeros((n, n), dtype=np.int32)
+    area = n * n
+    nblocks = int(area / 2500) if nblocks is None else nblocks
+    towers = int(area / 40000) if towers is None else towers
+    courtyards = int(area / 200000) if courtyards is None else courtyards
+    k = 0
+    for _ in range(nblocks):
+        w, d = rng.integers(5, 61, 2)
+        i, j = rng.integers(0, n - d), rng.integers(0, n - w)
+        top = ground[i:i + d, j:j + w].max() + rng.uniform(3, 150)
+        k += 1
+        h[i:i + d, j:j + w] = np.maximum(h[i:i + d, j:j + w], top)
+        roof[i:i + d, j:j + w] = np.where(h[i:i + d, j:j + w] == top, k, roof[i:i + d, j:j + w])
+    for _ in range(towers):
+        i, j = rng.integers(0, n, 2)
+        k += 1
+        h[i, j] = max(h[i, j], ground[i, j] + rng.uniform(20, 150))
+        roof[i, j] = k
+    for _ in range(courtyards):
+        w = int(rng.integers(30, 81))
+        t = int(rng.integers(6, 12))
+        i, j = rng.integers(0, n - w, 2)
+        top = ground[i:i + w, j:j + w].max() + rng.uniform(10, 40)
+        ring = np.ones((w, w), dtype=bool)
+        ring[t:w - t, t:w - t] = False
+        k += 1
+        sub = h[i:i + w, j:j + w]
+        sub[ring] = np.maximum(sub[ring], top)
+        roof[i:i + w, j:j + w][ring] = k
+    return dict(heights=h, lat_first=float(lat_first), lon_first=float(lon_first), dlat=-dlat, dlon=dlon,
+                a=WGS84_A, f=WGS84_F, roof_id=roof)
+
+
+def pushbroom_rays(scene: dict, n: int, altitude: tuple[float, float] = (500e3, 700e3),
+                   off_nadir: tuple[float, float] = (0.0, 30.0), seed: int = 0, margin: float = 0.1):
+    """n lines of sight from an orbit ``altitude`` m above the ellipsoid, ``off_nadir``
+    degrees from the local vertical, each aimed at a random ground point well inside
+    the scene (``margin`` of each side left out). Returns s (n, 3), l (n, 3), ECR metres."""
+    rng = np.random.default_rng(seed)
+    h = scene["heights"]
+    nr, nc = h.shape
+    i = rng.uniform(margin, 1 - margin, n) * (nr - 1)
+    j = rng.uniform(margin, 1 - margin, n) * (nc - 1)
+    lat = scene["lat_first"] + i * scene["dlat"]
+    lon = scene["lon_first"] + j * scene["dlon"]
+    a, f = scene.get("a", WGS84_A), scene.get("f", WGS84_F)
+    target = geodetic_to_ecef(lat, lon, np.zeros(n), a, f)
+    return _from_above(target, lat, lon, rng.uniform(*altitude, n), rng.uniform(*off_nadir, n),
+                       rng.uniform(0, 2 * np.pi, n))
+
+
+def airborne_rays(scene: dict, n: int, altitude: tuple[float, float] = (1000.0, 3000.0),
+                  elevation: tuple[float, float] = (10.0, 45.0), seed: int = 0, margin: float = 0.3):
+    """n oblique lines of sight from an aircraft ``altitude`` m up, ``elevation``
+    degrees above the horizon, aimed at points in the middle of the scene."""
+    rng = np.random.default_rng(seed)
+    nr, nc = scene["heights"].shape
+    i = rng.uniform(margin, 1 - margin, n) * (nr - 1)
+    j = rng.uniform(margin, 1 - margin, n) * (nc - 1)
+    lat = scene["lat_first"] + i * scene["dlat"]
+    lon = scene["lon_first"] + j * scene["dlon"]
+    a, f = scene.get("a", WGS84_A), scene.get("f", WGS84_F)
+    target = geodetic_to_ecef(lat, lon, np.zeros(n), a, f)
+    zen = 90.0 - rng.uniform(*elevation, n)
+    alt = rng.uniform(*altitude, n)
+    dist = alt / np.cos(np.radians(zen))
+    return _from_above(target, lat, lon, dist * np.cos(np.radians(zen)), zen, rng.uniform(0, 2 * np.pi, n))
+
+
+def _from_above(target, lat, lon, height, zen_deg, az):
+    """Rays ending at ``target`` that arrive from zenith angle zen (degrees, about the
+    local vertical) and azimuth az, starting ``height`` m above the target's level."""
+    la, lo = np.radians(lat), np.radians(lon)
+    up = np.stack([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)], axis=1)
+    east = np.stack([-np.sin(lo), np.cos(lo), np.zeros_like(lo)], axis=1)
+    north = np.cross(up, east)
+    z = np.radians(zen_deg)[:, None]
+    back = np.cos(z) * up + np.sin(z) * (np.cos(az)[:, None] * north + np.sin(az)[:, None] * east)
+    dist = height / np.cos(np.radians(zen_deg))
+    s = target + dist[:, None] * back
+    return s, -back
