@@ -1,0 +1,316 @@
+!> Footprint geometry of an orbiting nadir instrument (Mars Odyssey GRS notes,
+!> source document 003): for every spectrum (spacecraft position R) and every
+!> cell of a regular latitude/longitude cell table, the cell-to-spacecraft
+!> vector d, its length, the detector's solid angle, the zenith angles with
+!> the areocentric and the areodetic normal, the emission angle against the
+!> cell's topographic normal, the nadir angle, the position angle and the
+!> cell's coordinates in the spacecraft-local frame, for the cells in the
+!> footprint only.
+!>
+!> Frame: planet-fixed, x to (0 N, 0 E), z north. Lengths in the DEM's units,
+!> angles in radians. Cells: row-major from the south-west, `nrow = pi/cd`
+!> rows of `ncol = 2 pi/cd` columns; cell k = i*ncol + j (0-based) has its
+!> centre at areocentric latitude -pi/2 + (i + 1/2) cd and east longitude
+!> (j + 1/2) cd. The caller supplies per cell the unit centre direction u,
+!> the centre radius |r_C| (r_C = |r_C| u), the unit areodetic normal and the
+!> unit topographic normal.
+!>
+!> Selection (docs/grs-notes.md, notes 6 and 7): a cell is in the footprint of
+!> spectrum s when it is above its horizon, d . u > 0 (the areocentric normal
+!> defines the horizon), and cos psi = d_hat . R_hat >= zeta(s). Only the
+!> candidate cells are evaluated: those whose centre lies within the largest
+!> central angle theta_max that any selected cell can have (a latitude band
+!> and, per row, a longitude interval), computed from the lowest cell radius:
+!> both the horizon limit acos(r/|R|) and the cone limit
+!> asin(|R| sin psi_max / r) - psi_max decrease with r, so the lowest cell
+!> bounds them all. The prefilter only removes cells that fail the exact test.
+!>
+!> No state is kept between calls; spectra are independent and computed by
+!> the same code whichever OpenMP thread runs them, so results are
+!> bit-identical for any thread count. No STOP, no I/O.
+module pi_footprint
+  use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
+  use pi_kinds, only: dp, i8
+  use pi_vector, only: pi
+  !$ use omp_lib, only: omp_get_max_threads
+  implicit none
+  private
+
+  public :: footprint_count, footprint_fill
+  public :: fp_ok, fp_bad_position, fp_inside, fp_bad_cells, fp_bad_offsets
+
+  !> Success (routine and per-spectrum code).
+  integer, parameter :: fp_ok = 0
+  !> Per spectrum: the spacecraft position is NaN/Inf or zero.
+  integer, parameter :: fp_bad_position = 1
+  !> Per spectrum: the spacecraft is not above the highest cell centre.
+  integer, parameter :: fp_inside = 2
+  !> Routine: the cell arrays disagree with nrow x ncol or a radius is not positive.
+  integer, parameter :: fp_bad_cells = 3
+  !> Routine: the pair offsets disagree with the counts of the spectra.
+  integer, parameter :: fp_bad_offsets = 4
+
+  !> Angular margin (radians) added to the prefilter's central angle and
+  !> longitude half-width, far above the rounding of the bounds.
+  real(dp), parameter :: margin = 1.0e-7_dp
+
+contains
+
+  !> Number of footprint cells of each spectrum (the first of the two passes).
+  !>
+  !> Inputs: R(3, ns) spacecraft positions (planet-fixed, DEM units); zeta(ns)
+  !> the cone's cos psi threshold per spectrum (<= 0: the horizon alone);
+  !> nrow, ncol, cd (radians) the cell grid; u(3, nc) unit centre directions,
+  !> rc(nc) centre radii; threads (0: all).
+  !> Outputs: counts(ns) cells in each footprint; status(ns) fp_ok,
+  !> fp_bad_position or fp_inside (count 0); stat fp_ok or fp_bad_cells.
+  subroutine footprint_count(ns, r, zeta, nrow, ncol, cd, nc, u, rc, threads, counts, status, stat)
+    integer, intent(in) :: ns, nrow, ncol, nc, threads
+    real(dp), intent(in) :: r(3, ns), zeta(ns), cd, u(3, nc), rc(nc)
+    integer(i8), intent(out) :: counts(ns)
+    integer, intent(out) :: status(ns), stat
+    real(dp) :: rmin, rtop, dummy(1, 1), dummy3(3, 1), frames(3, 3, 1)
+    integer :: s, nt
+    integer(i8) :: n
+    integer :: idummy(1, 1)
+    counts = 0
+    status = fp_ok
+    call check_cells(nrow, ncol, nc, rc, rmin, rtop, stat)
+    if (stat /= fp_ok) return
+    nt = thread_count(threads)
+    !$omp parallel do schedule(dynamic, 1) num_threads(nt) default(shared) private(s, n, dummy, dummy3, frames, idummy)
+    do s = 1, ns
+      call scan_spectrum(.false., s, r(:, s), frames(:, :, 1), zeta(s), nrow, ncol, cd, nc, u, rc, u, u, &
+                         rmin, rtop, 0.0_dp, 0_i8, 1_i8, idummy, dummy3, dummy3, dummy, n, status(s))
+      counts(s) = n
+    end do
+    !$omp end parallel do
+  end subroutine footprint_count
+
+  !> The footprint pairs of every spectrum with their geometry (second pass).
+  !>
+  !> Inputs as footprint_count, plus: frames(3, 3, ns), frames(:, i, s) the
+  !> i-th unit axis of spectrum s's spacecraft frame in the planet frame (x up,
+  !> y along the ground track, z = x cross y); ndet(3, nc) unit areodetic
+  !> normals; snorm(3, nc) unit topographic normals; area the detector's
+  !> projected area (DEM units squared); offsets(ns) the 0-based index of each
+  !> spectrum's first pair (the running sum of footprint_count's counts); m the
+  !> total number of pairs.
+  !> Outputs (pair p, 1-based): idx(p, 1) spectrum, idx(p, 2) cell (0-based);
+  !> d(:, p) = R - r_C; gsh(:, p) = r_C - R in the spacecraft frame; scal(p, :) =
+  !> 1 |d|, 2 solid angle area/|d|^2 (sr), 3 zenith angle against u,
+  !> 4 zenith angle against the areodetic normal, 5 emission angle against the
+  !> topographic normal, 6 nadir angle psi, 7 position angle clockwise from
+  !> north through east in [0, 2 pi) (NaN when the spacecraft is over a pole or
+  !> the cell is at the sub-spacecraft point), 8 azimuth in the spacecraft
+  !> frame from +y toward +z in [0, 2 pi), 9 elevation above the frame's y-z
+  !> plane (radians). status(ns), stat as footprint_count, stat fp_bad_offsets
+  !> when a spectrum's pairs would not fit its slot (nothing is then trusted).
+  subroutine footprint_fill(ns, r, frames, zeta, nrow, ncol, cd, nc, u, rc, ndet, snorm, area, offsets, m, &
+                            threads, idx, d, gsh, scal, status, stat)
+    integer, intent(in) :: ns, nrow, ncol, nc, threads
+    integer(i8), intent(in) :: m, offsets(ns)
+    real(dp), intent(in) :: r(3, ns), frames(3, 3, ns), zeta(ns), cd, u(3, nc), rc(nc), ndet(3, nc), &
+                            snorm(3, nc), area
+    integer, intent(out) :: idx(m, 2), status(ns), stat
+    real(dp), intent(out) :: d(3, m), gsh(3, m), scal(m, 9)
+    real(dp) :: rmin, rtop
+    integer :: s, nt, bad
+    integer(i8) :: n, room
+    status = fp_ok
+    call check_cells(nrow, ncol, nc, rc, rmin, rtop, stat)
+    if (stat /= fp_ok) return
+    do s = 1, ns
+      if (offsets(s) < 0 .or. offsets(s) > m) then
+        stat = fp_bad_offsets
+        return
+      end if
+    end do
+    nt = thread_count(threads)
+    bad = 0
+    !$omp parallel do schedule(dynamic, 1) num_threads(nt) default(shared) private(s, n, room) reduction(max:bad)
+    do s = 1, ns
+      if (s < ns) then
+        room = offsets(s + 1) - offsets(s)
+      else
+        room = m - offsets(s)
+      end if
+      call scan_spectrum(.true., s, r(:, s), frames(:, :, s), zeta(s), nrow, ncol, cd, nc, u, rc, ndet, snorm, &
+                         rmin, rtop, area, offsets(s), room, idx, d, gsh, scal, n, status(s))
+      if (n > room) bad = 1
+    end do
+    !$omp end parallel do
+    if (bad /= 0) stat = fp_bad_offsets
+  end subroutine footprint_fill
+
+  !> Check the cell arrays; return the lowest and highest centre radius.
+  subroutine check_cells(nrow, ncol, nc, rc, rmin, rtop, stat)
+    integer, intent(in) :: nrow, ncol, nc
+    real(dp), intent(in) :: rc(nc)
+    real(dp), intent(out) :: rmin, rtop
+    integer, intent(out) :: stat
+    stat = fp_ok
+    rmin = 0.0_dp
+    rtop = 0.0_dp
+    if (nrow < 1 .or. ncol /= 2*nrow .or. int(nrow, i8)*int(ncol, i8) /= int(nc, i8)) then
+      stat = fp_bad_cells
+      return
+    end if
+    rmin = minval(rc)
+    rtop = maxval(rc)
+    if (.not. (rmin > 0.0_dp .and. rtop < huge(rtop))) stat = fp_bad_cells
+  end subroutine check_cells
+
+  !> OpenMP thread count: `threads` when positive, else all available.
+  integer function thread_count(threads) result(nt)
+    integer, intent(in) :: threads
+    nt = 1
+    !$ nt = omp_get_max_threads()
+    if (threads > 0) nt = threads
+  end function thread_count
+
+  !> Visit the candidate cells of one spectrum; count those in the footprint
+  !> and, when `fill`, write their geometry from pair index base + 1 on (at
+  !> most `room` pairs). n returns the number of footprint cells.
+  subroutine scan_spectrum(fill, s, r, frame, zeta, nrow, ncol, cd, nc, u, rc, ndet, snorm, rmin, rtop, area, &
+                           base, room, idx, d, gsh, scal, n, status)
+    logical, intent(in) :: fill
+    integer, intent(in) :: s, nrow, ncol, nc
+    real(dp), intent(in) :: r(3), frame(3, 3), zeta, cd, u(3, nc), rc(nc), ndet(3, nc), snorm(3, nc), &
+                            rmin, rtop, area
+    integer(i8), intent(in) :: base, room
+    integer, intent(inout) :: idx(:, :)
+    real(dp), intent(inout) :: d(:, :), gsh(:, :), scal(:, :)
+    integer(i8), intent(out) :: n
+    integer, intent(out) :: status
+    real(dp) :: rn, rhat(3), beta, lam, theta, psim, q, cmax, sb, cb, phi, sp, cp, rhs, dlam
+    real(dp) :: east(3), north(3), dv(3), dist2, dist, dh(3), uk(3), x, y, nan, pole
+    integer :: ilo, ihi, i, jlo, jhi, jj, j, k
+    integer(i8) :: p
+    n = 0
+    status = fp_ok
+    if (.not. all(abs(r) < huge(r))) then
+      status = fp_bad_position
+      return
+    end if
+    rn = norm2(r)
+    if (.not. rn > 0.0_dp) then
+      status = fp_bad_position
+      return
+    end if
+    if (.not. rn > rtop) then
+      status = fp_inside
+      return
+    end if
+    rhat = r / rn
+    nan = ieee_value(nan, ieee_quiet_nan)
+    ! largest central angle of a selected cell (module header): horizon, then the cone
+    theta = acos(rmin / rn)
+    if (zeta > 0.0_dp) then
+      psim = acos(min(zeta, 1.0_dp))
+      q = rn * sin(psim) / rmin
+      if (q < 1.0_dp) theta = min(theta, asin(q) - psim)
+    end if
+    theta = max(theta, 0.0_dp) + margin
+    cmax = cos(min(theta, pi))
+    beta = atan2(rhat(3), hypot(rhat(1), rhat(2)))
+    lam = atan2(rhat(2), rhat(1))
+    sb = sin(beta)
+    cb = cos(beta)
+    ! local east and north at the sub-spacecraft point, both scaled by cos(beta)
+    ! (their common factor cancels in atan2): notes' position angle, corrected (note 5)
+    east = [-rhat(2), rhat(1), 0.0_dp]
+    north = [-rhat(3)*rhat(1), -rhat(3)*rhat(2), 1.0_dp - rhat(3)*rhat(3)]
+    pole = hypot(rhat(1), rhat(2))
+    ilo = max(0, ceiling((beta - theta + pi/2) / cd - 0.5_dp))
+    ihi = min(nrow - 1, floor((beta + theta + pi/2) / cd - 0.5_dp))
+    do i = ilo, ihi
+      phi = -pi/2 + (real(i, dp) + 0.5_dp) * cd
+      sp = sin(phi)
+      cp = cos(phi)
+      if (cp * cb <= 1.0e-12_dp) then
+        jlo = 0
+        jhi = ncol - 1
+      else
+        rhs = (cmax - sp*sb) / (cp*cb)
+        if (rhs > 1.0_dp) cycle
+        if (rhs <= -1.0_dp) then
+          jlo = 0
+          jhi = ncol - 1
+        else
+          dlam = acos(rhs) + margin
+          jlo = ceiling((lam - dlam) / cd - 0.5_dp)
+          jhi = floor((lam + dlam) / cd - 0.5_dp)
+          if (jhi - jlo + 1 >= ncol) then
+            jlo = 0
+            jhi = ncol - 1
+          end if
+        end if
+      end if
+      do jj = jlo, jhi
+        j = modulo(jj, ncol)
+        k = i*ncol + j + 1
+        uk = u(:, k)
+        dv = r - rc(k)*uk                                   ! notes: d = R_S/C - r_C
+        if (.not. dot_product(dv, uk) > 0.0_dp) cycle       ! below the horizon (note 7)
+        dist2 = dot_product(dv, dv)
+        dist = sqrt(dist2)
+        if (dot_product(dv, rhat) < zeta * dist) cycle      ! cos psi >= zeta (note 6)
+        n = n + 1
+        if (.not. fill .or. n > room) cycle
+        p = base + n
+        dh = dv / dist
+        idx(p, 1) = s - 1
+        idx(p, 2) = k - 1
+        d(:, p) = dv
+        scal(p, 1) = dist
+        scal(p, 2) = area / dist2                           ! notes: Omega = A / |d|^2
+        scal(p, 3) = unit_angle(dh, uk)                     ! notes: cos z = r_C . d / (|r_C| |d|)
+        scal(p, 4) = unit_angle(dh, ndet(:, k))             ! areodetic normal (note 2)
+        scal(p, 5) = unit_angle(dh, snorm(:, k))            ! notes: cos e = s_C . d_hat
+        scal(p, 6) = unit_angle(dh, rhat)                   ! notes: cos psi = d_hat . R_hat
+        if (pole > 1.0e-12_dp) then
+          x = dot_product(uk, east)
+          y = dot_product(uk, north)
+          if (x == 0.0_dp .and. y == 0.0_dp) then
+            scal(p, 7) = nan
+          else
+            scal(p, 7) = wrap_2pi(atan2(x, y))              ! clockwise from north through east (note 5)
+          end if
+        else
+          scal(p, 7) = nan                                  ! spacecraft over a pole: north undefined
+        end if
+        gsh(1, p) = -dot_product(frame(:, 1), dv)           ! r_C - R in the spacecraft frame (note 9)
+        gsh(2, p) = -dot_product(frame(:, 2), dv)
+        gsh(3, p) = -dot_product(frame(:, 3), dv)
+        scal(p, 8) = wrap_2pi(atan2(gsh(3, p), gsh(2, p)))
+        scal(p, 9) = atan2(gsh(1, p), hypot(gsh(2, p), gsh(3, p)))
+      end do
+    end do
+  end subroutine scan_spectrum
+
+  !> Angle between two unit vectors in [0, pi]: 2 asin(|a - b|/2), accurate
+  !> near 0 where acos(a . b) is not; near pi (|a - b| > 1.9) atan2(|a x b|, a . b).
+  pure real(dp) function unit_angle(a, b) result(angle)
+    real(dp), intent(in) :: a(3), b(3)
+    real(dp) :: h, c(3)
+    h = norm2(a - b)
+    if (h <= 1.9_dp) then
+      angle = 2.0_dp * asin(0.5_dp * h)
+    else
+      c(1) = a(2)*b(3) - a(3)*b(2)
+      c(2) = a(3)*b(1) - a(1)*b(3)
+      c(3) = a(1)*b(2) - a(2)*b(1)
+      angle = atan2(norm2(c), dot_product(a, b))
+    end if
+  end function unit_angle
+
+  !> An angle mapped to [0, 2 pi).
+  pure real(dp) function wrap_2pi(a) result(w)
+    real(dp), intent(in) :: a
+    w = a
+    if (w < 0.0_dp) w = w + 2.0_dp*pi
+    if (w >= 2.0_dp*pi) w = 0.0_dp
+  end function wrap_2pi
+
+end module pi_footprint
