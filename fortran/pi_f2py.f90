@@ -210,31 +210,31 @@ end subroutine core_codes
 ! ============================================================================
 
 !> Footprint cell count per spectrum (first pass). See pi_footprint::footprint_count.
-subroutine core_footprint_count(ns, r, zeta, nrow, ncol, cd, nc, u, rc, threads, counts, status, stat)
+subroutine core_footprint_count(ns, r, zeta, nrow, ncol, cd, nc, u, rc, rmin, rtop, threads, counts, status, stat)
   use pi_kinds, only: dp, i8
   use pi_footprint, only: footprint_count
   implicit none
   integer, intent(in) :: ns, nrow, ncol, nc, threads
-  real(dp), intent(in) :: r(3, ns), zeta(ns), cd, u(3, nc), rc(nc)
+  real(dp), intent(in) :: r(3, ns), zeta(ns), cd, u(3, nc), rc(nc), rmin, rtop
   integer(i8), intent(out) :: counts(ns)
   integer, intent(out) :: status(ns), stat
-  call footprint_count(ns, r, zeta, nrow, ncol, cd, nc, u, rc, threads, counts, status, stat)
+  call footprint_count(ns, r, zeta, nrow, ncol, cd, nc, u, rc, rmin, rtop, threads, counts, status, stat)
 end subroutine core_footprint_count
 
 !> Footprint pairs and their geometry (second pass). See pi_footprint::footprint_fill.
-subroutine core_footprint_fill(ns, r, frames, zeta, nrow, ncol, cd, nc, u, rc, ndet, snorm, area, offsets, m, &
-                               threads, idx, d, gsh, scal, status, stat)
+subroutine core_footprint_fill(ns, r, frames, zeta, nrow, ncol, cd, nc, u, rc, rmin, rtop, ndet, snorm, area, &
+                               offsets, m, threads, idx, d, gsh, scal, status, stat)
   use pi_kinds, only: dp, i8
   use pi_footprint, only: footprint_fill
   implicit none
   integer, intent(in) :: ns, nrow, ncol, nc, threads
   integer(i8), intent(in) :: m, offsets(ns)
-  real(dp), intent(in) :: r(3, ns), frames(3, 3, ns), zeta(ns), cd, u(3, nc), rc(nc), ndet(3, nc), &
-                          snorm(3, nc), area
+  real(dp), intent(in) :: r(3, ns), frames(3, 3, ns), zeta(ns), cd, u(3, nc), rc(nc), rmin, rtop, &
+                          ndet(3, nc), snorm(3, nc), area
   integer, intent(out) :: idx(m, 2), status(ns), stat
   real(dp), intent(out) :: d(3, m), gsh(3, m), scal(m, 9)
-  call footprint_fill(ns, r, frames, zeta, nrow, ncol, cd, nc, u, rc, ndet, snorm, area, offsets, m, &
-                      threads, idx, d, gsh, scal, status, stat)
+  call footprint_fill(ns, r, frames, zeta, nrow, ncol, cd, nc, u, rc, rmin, rtop, ndet, snorm, area, &
+                      offsets, m, threads, idx, d, gsh, scal, status, stat)
 end subroutine core_footprint_fill
 
 !> The footprint status codes as compiled (fp_ok, fp_bad_position, fp_inside,

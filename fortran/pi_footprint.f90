@@ -61,24 +61,26 @@ contains
   !> Inputs: R(3, ns) spacecraft positions (planet-fixed, DEM units); zeta(ns)
   !> the cone's cos psi threshold per spectrum (<= 0: the horizon alone);
   !> nrow, ncol, cd (radians) the cell grid; u(3, nc) unit centre directions,
-  !> rc(nc) centre radii; threads (0: all).
+  !> rc(nc) centre radii, rmin and rtop their least and largest value (the
+  !> prefilter's bound and the inside test); threads (0: all).
   !> Outputs: counts(ns) cells in each footprint; status(ns) fp_ok,
   !> fp_bad_position or fp_inside (count 0); stat fp_ok or fp_bad_cells.
-  subroutine footprint_count(ns, r, zeta, nrow, ncol, cd, nc, u, rc, threads, counts, status, stat)
+  subroutine footprint_count(ns, r, zeta, nrow, ncol, cd, nc, u, rc, rmin, rtop, threads, counts, status, stat)
     integer, intent(in) :: ns, nrow, ncol, nc, threads
-    real(dp), intent(in) :: r(3, ns), zeta(ns), cd, u(3, nc), rc(nc)
+    real(dp), intent(in) :: r(3, ns), zeta(ns), cd, u(3, nc), rc(nc), rmin, rtop
     integer(i8), intent(out) :: counts(ns)
     integer, intent(out) :: status(ns), stat
-    real(dp) :: rmin, rtop, dummy(1, 1), dummy3(3, 1), frames(3, 3, 1)
+    real(dp) :: dummy(1, 1), dummy3(3, 1), frames(3, 3, 1)
     integer :: s, nt
     integer(i8) :: n
     integer :: idummy(1, 1)
     counts = 0
     status = fp_ok
-    call check_cells(nrow, ncol, nc, rc, rmin, rtop, stat)
+    call check_cells(nrow, ncol, nc, rmin, rtop, stat)
     if (stat /= fp_ok) return
+    frames = 0.0_dp
     nt = thread_count(threads)
-    !$omp parallel do schedule(dynamic, 1) num_threads(nt) default(shared) private(s, n, dummy, dummy3, frames, idummy)
+    !$omp parallel do schedule(dynamic, 1) num_threads(nt) default(shared) private(s, n, dummy, dummy3, idummy)
     do s = 1, ns
       call scan_spectrum(.false., s, r(:, s), frames(:, :, 1), zeta(s), nrow, ncol, cd, nc, u, rc, u, u, &
                          rmin, rtop, 0.0_dp, 0_i8, 1_i8, idummy, dummy3, dummy3, dummy, n, status(s))
@@ -106,19 +108,18 @@ contains
   !> frame from +y toward +z in [0, 2 pi), 9 elevation above the frame's y-z
   !> plane (radians). status(ns), stat as footprint_count, stat fp_bad_offsets
   !> when a spectrum's pairs would not fit its slot (nothing is then trusted).
-  subroutine footprint_fill(ns, r, frames, zeta, nrow, ncol, cd, nc, u, rc, ndet, snorm, area, offsets, m, &
-                            threads, idx, d, gsh, scal, status, stat)
+  subroutine footprint_fill(ns, r, frames, zeta, nrow, ncol, cd, nc, u, rc, rmin, rtop, ndet, snorm, area, &
+                            offsets, m, threads, idx, d, gsh, scal, status, stat)
     integer, intent(in) :: ns, nrow, ncol, nc, threads
     integer(i8), intent(in) :: m, offsets(ns)
-    real(dp), intent(in) :: r(3, ns), frames(3, 3, ns), zeta(ns), cd, u(3, nc), rc(nc), ndet(3, nc), &
-                            snorm(3, nc), area
+    real(dp), intent(in) :: r(3, ns), frames(3, 3, ns), zeta(ns), cd, u(3, nc), rc(nc), rmin, rtop, &
+                            ndet(3, nc), snorm(3, nc), area
     integer, intent(out) :: idx(m, 2), status(ns), stat
     real(dp), intent(out) :: d(3, m), gsh(3, m), scal(m, 9)
-    real(dp) :: rmin, rtop
     integer :: s, nt, bad
     integer(i8) :: n, room
     status = fp_ok
-    call check_cells(nrow, ncol, nc, rc, rmin, rtop, stat)
+    call check_cells(nrow, ncol, nc, rmin, rtop, stat)
     if (stat /= fp_ok) return
     do s = 1, ns
       if (offsets(s) < 0 .or. offsets(s) > m) then
@@ -143,22 +144,19 @@ contains
     if (bad /= 0) stat = fp_bad_offsets
   end subroutine footprint_fill
 
-  !> Check the cell arrays; return the lowest and highest centre radius.
-  subroutine check_cells(nrow, ncol, nc, rc, rmin, rtop, stat)
+  !> Check the cell grid's shape and the radius bounds (rmin, rtop: the least
+  !> and largest of rc, computed once per table by the caller rather than
+  !> scanned on every call).
+  subroutine check_cells(nrow, ncol, nc, rmin, rtop, stat)
     integer, intent(in) :: nrow, ncol, nc
-    real(dp), intent(in) :: rc(nc)
-    real(dp), intent(out) :: rmin, rtop
+    real(dp), intent(in) :: rmin, rtop
     integer, intent(out) :: stat
     stat = fp_ok
-    rmin = 0.0_dp
-    rtop = 0.0_dp
     if (nrow < 1 .or. ncol /= 2*nrow .or. int(nrow, i8)*int(ncol, i8) /= int(nc, i8)) then
       stat = fp_bad_cells
       return
     end if
-    rmin = minval(rc)
-    rtop = maxval(rc)
-    if (.not. (rmin > 0.0_dp .and. rtop < huge(rtop))) stat = fp_bad_cells
+    if (.not. (rmin > 0.0_dp .and. rtop >= rmin .and. rtop < huge(rtop))) stat = fp_bad_cells
   end subroutine check_cells
 
   !> OpenMP thread count: `threads` when positive, else all available.
@@ -184,7 +182,7 @@ contains
     integer(i8), intent(out) :: n
     integer, intent(out) :: status
     real(dp) :: rn, rhat(3), beta, lam, theta, psim, q, cmax, sb, cb, phi, sp, cp, rhs, dlam
-    real(dp) :: east(3), north(3), dv(3), dist2, dist, dh(3), uk(3), x, y, nan, pole
+    real(dp) :: east(3), north(3), dv(3), dist2, dist, dh(3), uk(3), x, y, nan, pole, track
     integer :: ilo, ihi, i, jlo, jhi, jj, j, k
     integer(i8) :: p
     n = 0
@@ -222,6 +220,12 @@ contains
     east = [-rhat(2), rhat(1), 0.0_dp]
     north = [-rhat(3)*rhat(1), -rhat(3)*rhat(2), 1.0_dp - rhat(3)*rhat(3)]
     pole = hypot(rhat(1), rhat(2))
+    ! bearing of the frame's +y axis (the ground track, clockwise from north), for the azimuth
+    if (fill .and. pole > 1.0e-12_dp) then
+      track = atan2(dot_product(frame(:, 2), east), dot_product(frame(:, 2), north))
+    else
+      track = 0.0_dp
+    end if
     ilo = max(0, ceiling((beta - theta + pi/2) / cd - 0.5_dp))
     ihi = min(nrow - 1, floor((beta + theta + pi/2) / cd - 0.5_dp))
     do i = ilo, ihi
@@ -283,8 +287,16 @@ contains
         gsh(1, p) = -dot_product(frame(:, 1), dv)           ! r_C - R in the spacecraft frame (note 9)
         gsh(2, p) = -dot_product(frame(:, 2), dv)
         gsh(3, p) = -dot_product(frame(:, 3), dv)
-        scal(p, 8) = wrap_2pi(atan2(gsh(3, p), gsh(2, p)))
-        scal(p, 9) = atan2(gsh(1, p), hypot(gsh(2, p), gsh(3, p)))
+        ! azimuth from +y (forward) toward +z (left): the horizontal part of r_C - R
+        ! is that of r_C, whose bearing is the position angle, so az = (bearing
+        ! of the track) - PA (the notes' alpha: track = pi/2 - alpha); elevation: the
+        ! frame's x axis is R_hat, so el = asin(-d_hat . R_hat) = psi - pi/2
+        if (scal(p, 7) == scal(p, 7)) then
+          scal(p, 8) = wrap_2pi(track - scal(p, 7))
+        else
+          scal(p, 8) = wrap_2pi(atan2(gsh(3, p), gsh(2, p)))
+        end if
+        scal(p, 9) = scal(p, 6) - pi/2
       end do
     end do
   end subroutine scan_spectrum
@@ -293,15 +305,16 @@ contains
   !> near 0 where acos(a . b) is not; near pi (|a - b| > 1.9) atan2(|a x b|, a . b).
   pure real(dp) function unit_angle(a, b) result(angle)
     real(dp), intent(in) :: a(3), b(3)
-    real(dp) :: h, c(3)
-    h = norm2(a - b)
+    real(dp) :: h, c(3), e(3)
+    e = a - b
+    h = sqrt(e(1)*e(1) + e(2)*e(2) + e(3)*e(3))
     if (h <= 1.9_dp) then
       angle = 2.0_dp * asin(0.5_dp * h)
     else
       c(1) = a(2)*b(3) - a(3)*b(2)
       c(2) = a(3)*b(1) - a(1)*b(3)
       c(3) = a(1)*b(2) - a(2)*b(1)
-      angle = atan2(norm2(c), dot_product(a, b))
+      angle = atan2(sqrt(c(1)*c(1) + c(2)*c(2) + c(3)*c(3)), dot_product(a, b))
     end if
   end function unit_angle
 

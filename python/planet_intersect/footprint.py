@@ -329,8 +329,11 @@ def _build_cells(dem: DEM, nrow: int) -> dict:
         radius=r0.ravel(), r=r.reshape(-1, 3), u=u.reshape(-1, 3), normal=normal.reshape(-1, 3),
         normal_detic=ndet.reshape(-1, 3), area=area.ravel(), slope=slope.ravel(), radius_dem=radius_dem,
     )
+    if not (np.isfinite(r0).all() and (r0 > 0).all()):
+        raise ValueError("CellTable: a cell's mean radius is not positive and finite")
     for v in out.values():
         v.flags.writeable = False
+    out["radius_range"] = (float(r0.min()), float(r0.max()))
     return out
 
 
@@ -878,8 +881,9 @@ def _run_kernel(cells: CellTable, R: np.ndarray, frames: np.ndarray, zeta: np.nd
 
     cd = math.radians(cells.cell_deg)
     u = cells.u
+    rmin, rtop = cells.radius_range
     counts, status, stat = _core.core_footprint_count(R.T, zeta, cells.nrow, cells.ncol, cd, u.T, cells.radius,
-                                                      threads=threads)
+                                                      rmin, rtop, threads=threads)
     _raise_status(stat, status, R, cells)
     offsets = np.zeros(len(R), dtype=np.int64)
     if len(R) > 1:
@@ -887,8 +891,8 @@ def _run_kernel(cells: CellTable, R: np.ndarray, frames: np.ndarray, zeta: np.nd
     m = int(counts.sum())
     fr = np.ascontiguousarray(frames)
     idx, d, gsh, scal, status, stat = _core.core_footprint_fill(
-        R.T, fr.transpose(2, 1, 0), zeta, cells.nrow, cells.ncol, cd, u.T, cells.radius, cells.normal_detic.T,
-        cells.normal.T, area, offsets, max(m, 0), threads=threads)
+        R.T, fr.transpose(2, 1, 0), zeta, cells.nrow, cells.ncol, cd, u.T, cells.radius, rmin, rtop,
+        cells.normal_detic.T, cells.normal.T, area, offsets, max(m, 0), threads=threads)
     _raise_status(stat, status, R, cells)
     return idx, d, gsh, scal
 
@@ -988,12 +992,12 @@ def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta:
         z = 0.0 if zeta is None else _real(zeta, "zeta", lo=-1.0, hi=1.0)
         zeta_arr = np.full(len(R), z)
     idx, d, gsh, scal = _run_kernel(cells, R, frames, zeta_arr, area, int(threads))
-    deg = 180.0 / math.pi
+    scal[:, 2:] *= 180.0 / math.pi            # columns of a Fortran-ordered array: one block, in place, no copies
     res = FootprintResult(
         spectrum=idx[:, 0], cell=idx[:, 1], d=d.T, distance=scal[:, 0], solid_angle=scal[:, 1],
-        zenith_centric=scal[:, 2] * deg, zenith_detic=scal[:, 3] * deg, emission=scal[:, 4] * deg,
-        nadir_angle=scal[:, 5] * deg, position_angle=scal[:, 6] * deg, gsh=gsh.T, azimuth=scal[:, 7] * deg,
-        elevation=scal[:, 8] * deg, visible=np.ones(len(idx), dtype=bool), zeta=zeta_arr,
+        zenith_centric=scal[:, 2], zenith_detic=scal[:, 3], emission=scal[:, 4],
+        nadir_angle=scal[:, 5], position_angle=scal[:, 6], gsh=gsh.T, azimuth=scal[:, 7],
+        elevation=scal[:, 8], visible=np.ones(len(idx), dtype=bool), zeta=zeta_arr,
         cells=cells, airmass_model=airmass_model, H=H)
     if flux_fraction is not None:
         res = _flux_cone(res, q)
@@ -1175,7 +1179,8 @@ def orbit_study(cells: CellTable | None = None, periapsis_alt: float = 387.0, ap
 
         for z in zetas:
             c, status, stat = _core.core_footprint_count(R.T, np.full(n, float(z)), cells.nrow, cells.ncol,
-                                                         math.radians(cells.cell_deg), cells.u.T, cells.radius)
+                                                         math.radians(cells.cell_deg), cells.u.T, cells.radius,
+                                                         *cells.radius_range)
             _raise_status(stat, status, R, cells)
             counts[float(z)] = c
     th = np.radians(np.asarray(offsets_deg, dtype=np.float64))
