@@ -321,7 +321,7 @@ contains
         gsh(2, p) = -dot_product(frame(:, 2), dv)
         gsh(3, p) = -dot_product(frame(:, 3), dv)
       end do
-      ! angle (0..pi) between unit vectors from their squared chords hm = |a - b|^2,
+      ! [note 15] angle (0..pi) between unit vectors from their squared chords hm = |a - b|^2,
       ! hp = |a + b|^2: 2 asin(sqrt(hm)/2) up to 90 deg, pi - 2 asin(sqrt(hp)/2)
       ! beyond, so that asin's argument t stays below 0.7072; asin t from fdlibm's
       ! kernel, for t >= 1/2 as pi/2 - 2 asin(sqrt((1 - t)/2)). Accurate near 0 and

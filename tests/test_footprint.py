@@ -398,6 +398,12 @@ def test_result_exports(sphere):
 # ---------------------------------------------------------------------------------------------
 # bad input
 # ---------------------------------------------------------------------------------------------
+def test_status_codes_agree_with_the_fortran():
+    from planet_intersect import _core
+
+    assert list(F.FOOTPRINT_STATUS) == list(_core.core_footprint_codes())
+
+
 def test_bad_input_raises_clear_errors(sphere):
     with pytest.raises(ValueError, match="cell_deg must divide 180"):
         pi.CellTable(sphere.dem, 0.7)

@@ -120,3 +120,22 @@ def test_state_vector_errors(kernels, tmp_path):
     with pytest.raises(ValueError, match=r"times\[1\]"):
         state_vectors([ET0, float("nan")], kernels=kernels)
     assert not sp.ktotal("ALL")
+
+
+def test_footprint_cli_from_spice_kernels(kernels, tmp_path):
+    """The CLI's --kernels/--times path gives the footprint of the SPICE states."""
+    import planet_intersect as pi
+    from planet_intersect.cli import main
+
+    hdr = pi.DEM.from_array(np.full((180, 360), 3390.0)).write(tmp_path / "sphere")
+    times = tmp_path / "times.txt"
+    times.write_text(f"# ET seconds\n{ET0 + 100.0!r}\n{ET0 + 700.0!r}\n")
+    out = tmp_path / "out"
+    assert main(["footprint", "--kernels", *kernels, "--times", str(times), "--dem", str(hdr), "--cell-deg", "1",
+                 "--zeta", "0.9", "--out", str(out)]) == 0
+    table = np.genfromtxt(out / "run-001" / "footprint.csv", delimiter=",", names=True)
+    R, v, _ = state_vectors([ET0 + 100.0, ET0 + 700.0], kernels=kernels)
+    fp = pi.footprint(pi.CellTable(pi.DEM.read(hdr), 1.0), R, v, zeta=0.9)
+    assert len(table) == len(fp) > 0
+    assert np.allclose(table["nadir_angle"], fp.nadir_angle, atol=1e-9)
+    assert not sp.ktotal("ALL")

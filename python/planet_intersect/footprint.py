@@ -191,8 +191,9 @@ class CellTable:
       pixel centres inside it), else through the DEM's bilinear surface sampled
       at 4 x 4 points spread evenly over the cell. The sample grid is symmetric
       about the centre in (b, l), so r0 is the samples' mean and the gradient
-      is free of the curvature terms that bias a Cartesian plane fit over a
-      trapezoidal cell (about 6.5e-6 tan(b) rad on Mars for 0.5 deg cells).
+      is free of the curvature terms that tilt a Cartesian plane fit over a
+      trapezoidal cell (measured on the Mars spheroid, 0.5 deg cells: 1.2e-6 rad
+      at 45 deg for a Cartesian plane, 1.9e-8 rad for this fit).
     * ``r``: the centre point ``r0 u``, u the unit vector to (lat, lon): the
       cell's mean radius rather than the DEM at the centre, because the GRS
       integrates over the cell; for 0.5 deg cells on a 4 ppd grid the two are
@@ -1040,7 +1041,7 @@ def _flux_cone(res: FootprintResult, q: float) -> FootprintResult:
 
 def occluded_not(cells: CellTable, R: np.ndarray, fp: FootprintResult, tol: float | None = None,
                  threads: int = 0, chunk: int = 200_000, progress=None) -> np.ndarray:
-    """True for each pair whose line from the spacecraft to the cell is not blocked by terrain.
+    """True for each pair whose line from the spacecraft to the cell is not blocked by terrain [note 14].
 
     The ray runs from R[spectrum] to the DEM surface at the cell centre
     (``cells.radius_dem`` along u); it is cast with the package's exact first
