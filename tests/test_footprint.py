@@ -436,6 +436,12 @@ def test_bad_input_raises_clear_errors(sphere):
         pi.scale_height(T=-5)
     with pytest.raises(ValueError, match="threads"):
         pi.footprint(sphere, R, [0, 0, 1], threads=-1)
+    with pytest.raises(ValueError, match="threads"):
+        pi.footprint(sphere, R, [0, 0, 1], threads=10 ** 6)
+    with pytest.raises(ValueError, match="use larger cells"):
+        pi.CellTable(sphere.dem, 0.001)
+    with pytest.raises(ValueError, match="v: 2 velocities"):
+        pi.footprint(sphere, R, [[0, 0, 1.0], [0, 1.0, 0]])
 
 
 # ---------------------------------------------------------------------------------------------

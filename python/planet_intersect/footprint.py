@@ -172,6 +172,9 @@ def geodetic_latitude(p, re: float, f: float, tol: float = 1e-15, max_iter: int 
 # the cell table
 # ----------------------------------------------------------------------------------------
 _CELL_CACHE: "weakref.WeakKeyDictionary[DEM, dict]" = weakref.WeakKeyDictionary()
+#: bytes per cell of a CellTable (its arrays) and the largest table built
+_CELL_BYTES = 8 * 26
+_CELL_TABLE_MAX_BYTES = 16e9
 
 
 class CellTable:
@@ -224,6 +227,10 @@ class CellTable:
         if nrow < 1 or abs(nrow * cell_deg - 180.0) > 1e-9 * 180.0:
             raise ValueError(f"cell_deg must divide 180 (0.5, 1, 0.25, ...), got {cell_deg}")
         cell_deg = 180.0 / nrow
+        need = 2 * nrow * nrow * _CELL_BYTES
+        if need > _CELL_TABLE_MAX_BYTES:
+            raise ValueError(f"cell_deg = {cell_deg:g} makes {2 * nrow * nrow:,} cells, about {need / 1e9:.0f} GB "
+                             f"of cell table (the limit is {_CELL_TABLE_MAX_BYTES / 1e9:.0f} GB): use larger cells")
         self.dem = dem
         self.cell_deg = cell_deg
         self.nrow = nrow
@@ -976,8 +983,9 @@ def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta:
         H = _real(H, "H", lo=0.0, lo_open=True)
     if threads is None:
         threads = 0
-    if isinstance(threads, (bool, np.bool_)) or not isinstance(threads, (int, np.integer)) or threads < 0:
-        raise ValueError(f"threads must be a non-negative integer (0 or None: all cores), got {threads!r}")
+    if (isinstance(threads, (bool, np.bool_)) or not isinstance(threads, (int, np.integer)) or threads < 0
+            or threads > 1024):
+        raise ValueError(f"threads must be an integer from 0 to 1024 (0 or None: all cores), got {threads!r}")
     if v is None:
         frames = np.full((len(R), 3, 3), np.nan)
     else:
