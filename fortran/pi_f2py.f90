@@ -213,3 +213,45 @@ subroutine core_codes(codes)
            ray_hit_unconverged, ray_bad_direction, ray_bad_position, ray_inside, ray_read_error, &
            ray_unresolved]
 end subroutine core_codes
+
+! ============================================================================
+! Footprint geometry (Mars Odyssey GRS notes, issue 13): pi_footprint.
+! Python: planet_intersect.footprint. Cells and spectra as in pi_footprint.
+! ============================================================================
+
+!> Footprint cell count per spectrum (first pass). See pi_footprint::footprint_count.
+subroutine core_footprint_count(ns, r, zeta, nrow, ncol, cd, nc, u, rc, rmin, rtop, threads, counts, status, stat)
+  use pi_kinds, only: dp, i8
+  use pi_footprint, only: footprint_count
+  implicit none
+  integer, intent(in) :: ns, nrow, ncol, nc, threads
+  real(dp), intent(in) :: r(3, ns), zeta(ns), cd, u(3, nc), rc(nc), rmin, rtop
+  integer(i8), intent(out) :: counts(ns)
+  integer, intent(out) :: status(ns), stat
+  call footprint_count(ns, r, zeta, nrow, ncol, cd, nc, u, rc, rmin, rtop, threads, counts, status, stat)
+end subroutine core_footprint_count
+
+!> Footprint pairs and their geometry (second pass). See pi_footprint::footprint_fill.
+subroutine core_footprint_fill(ns, r, frames, zeta, nrow, ncol, cd, nc, u, rc, rmin, rtop, ndet, snorm, area, &
+                               offsets, m, threads, idx, d, gsh, scal, status, stat)
+  use pi_kinds, only: dp, i8
+  use pi_footprint, only: footprint_fill
+  implicit none
+  integer, intent(in) :: ns, nrow, ncol, nc, threads
+  integer(i8), intent(in) :: m, offsets(ns)
+  real(dp), intent(in) :: r(3, ns), frames(3, 3, ns), zeta(ns), cd, u(3, nc), rc(nc), rmin, rtop, &
+                          ndet(3, nc), snorm(3, nc), area
+  integer, intent(out) :: idx(m, 2), status(ns), stat
+  real(dp), intent(out) :: d(3, m), gsh(3, m), scal(m, 9)
+  call footprint_fill(ns, r, frames, zeta, nrow, ncol, cd, nc, u, rc, rmin, rtop, ndet, snorm, area, &
+                      offsets, m, threads, idx, d, gsh, scal, status, stat)
+end subroutine core_footprint_fill
+
+!> The footprint status codes as compiled (fp_ok, fp_bad_position, fp_inside,
+!> fp_bad_cells, fp_bad_offsets), so Python can check that its copy agrees.
+subroutine core_footprint_codes(codes)
+  use pi_footprint, only: fp_ok, fp_bad_position, fp_inside, fp_bad_cells, fp_bad_offsets
+  implicit none
+  integer, intent(out) :: codes(5)
+  codes = [fp_ok, fp_bad_position, fp_inside, fp_bad_cells, fp_bad_offsets]
+end subroutine core_footprint_codes

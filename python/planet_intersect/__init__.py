@@ -16,12 +16,16 @@ from .dem import DEM, read_header
 from .geometry import detector_los, spheroid_radius, ray_spheroid_intersection
 from .intersect import IntersectResult, intersect
 from . import legacy_config  # link flags of the legacy FORTRAN77 library
+from .footprint import (CellTable, FootprintResult, airmass, footprint, scale_height,  # GRS footprint
+                        spacecraft_frame, spacecraft_quaternion)
 
 __version__ = "0.1.0"
 
 __all__ = [
     "DEM", "DEMError", "IntersectResult", "RAY_STATUS", "RayStatus", "detector_los", "intersect",
     "ray_spheroid_intersection", "read_header", "spheroid_radius", "legacy_paths",
+    "CellTable", "FootprintResult", "airmass", "footprint", "scale_height", "spacecraft_frame",
+    "spacecraft_quaternion",
 ]
 
 

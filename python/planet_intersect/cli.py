@@ -6,6 +6,7 @@
     planet-intersect examples olympus|limb [--dem HDR | --mola IMG] [--out DIR]
     planet-intersect import-mola OUT (--radius IMG | --topography IMG --areoid IMG) [--overwrite]
     planet-intersect fetch-mola DEST [--product megr90n000cb|megr90n000eb]
+    planet-intersect footprint (--states CSV | --kernels K... --times FILE) [--dem HDR | --mola IMG] [--zeta Z]
 
 Errors print one line on standard error and exit with status 2.
 """
@@ -322,6 +323,193 @@ def _fetch_mola(args) -> int:
     return 0
 
 
+# --- footprint (Mars Odyssey GRS notes, issue 13) ------------------------------------------------
+def _read_states_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """State vectors from CSV: x,y,z,vx,vy,vz or time,x,y,z,vx,vy,vz per line (an optional header line)."""
+    if not path.is_file():
+        raise CLIError(f"states file {path}: no such file")
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        lines = [ln for ln in fh if ln.strip() and not ln.lstrip().startswith("#")]
+    if not lines:
+        raise CLIError(f"states file {path}: no state vectors")
+    try:
+        float(lines[0].replace(",", " ").split()[0])
+    except ValueError:
+        lines = lines[1:]                                 # a header line
+    try:
+        data = np.loadtxt([ln.replace(",", " ") for ln in lines], ndmin=2)
+    except ValueError as exc:
+        raise CLIError(f"states file {path}: {exc}") from None
+    if data.shape[1] not in (6, 7):
+        raise CLIError(f"states file {path}: expected 6 columns (x y z vx vy vz) or 7 (time x y z vx vy vz), "
+                       f"got {data.shape[1]}")
+    if not np.isfinite(data).all():
+        row = int(np.argmax(~np.isfinite(data).all(axis=1)))
+        raise CLIError(f"states file {path}: row {row + 1} has NaN or Inf values")
+    t = data[:, 0] if data.shape[1] == 7 else None
+    return data[:, -6:-3], data[:, -3:], t
+
+
+def _read_times(path: Path) -> list:
+    if not path.is_file():
+        raise CLIError(f"times file {path}: no such file")
+    out = []
+    for ln in path.read_text(encoding="utf-8", errors="replace").splitlines():
+        ln = ln.strip()
+        if not ln or ln.startswith("#"):
+            continue
+        try:
+            out.append(float(ln))
+        except ValueError:
+            out.append(ln)
+    if not out:
+        raise CLIError(f"times file {path}: no times")
+    return out
+
+
+def _footprint(args) -> int:
+    import importlib
+
+    from . import CellTable, footprint
+
+    fpm = importlib.import_module("planet_intersect.footprint")
+    if bool(args.states) == bool(args.kernels):
+        raise CLIError("give --states CSV, or --kernels KERNEL... with --times FILE")
+    if args.zeta is not None and args.flux_fraction is not None:
+        raise CLIError("give --zeta or --flux-fraction, not both")
+    if args.states:
+        R, v, t = _read_states_csv(Path(args.states))
+        source = str(args.states)
+    else:
+        if not args.times:
+            raise CLIError("--kernels needs --times FILE (one UTC time or ET per line)")
+        from .spice_states import state_vectors
+
+        times = _read_times(Path(args.times))
+        R, v, t = state_vectors(times, kernels=args.kernels, target=args.target, observer=args.observer,
+                                frame=args.frame, abcorr=args.abcorr)
+        source = f"SPICE ({len(args.kernels)} kernels)"
+    dem, dem_source = _example_dem(args)
+    cells = CellTable(dem, args.cell_deg)
+    n = len(R)
+    chunk = max(1, int(args.chunk))
+    bar = Progress(n, "spectra", min_total=chunk + 1)
+    parts = []
+    t0 = time.perf_counter()
+    for a in range(0, n, chunk):
+        parts.append(footprint(cells, R[a:a + chunk], v[a:a + chunk], area=args.area, zeta=args.zeta,
+                               flux_fraction=args.flux_fraction, occlusion=args.occlusion, threads=args.threads))
+        bar(min(a + chunk, n))
+    fp = _concat_footprints(parts, chunk)
+    elapsed = time.perf_counter() - t0
+    out = _new_run_dir(Path(args.out))
+    written = []
+    cols = fp.to_table()
+    names = list(cols)
+    table = np.column_stack([np.asarray(cols[k], dtype=np.float64) for k in names])
+    fmt = ["%d" if k in ("spectrum", "cell", "visible") else "%.10g" for k in names]
+    np.savetxt(out / "footprint.csv", table, delimiter=",", header=",".join(names), comments="", fmt=fmt)
+    written.append(out / "footprint.csv")
+    try:
+        ds = fp.to_xarray()
+        ds["R"] = (("spectrum", "xyz"), R)
+        ds["v"] = (("spectrum", "xyz"), v)
+        if t is not None:
+            ds["time"] = ("spectrum", np.asarray(t, dtype=np.float64))
+        ds.attrs.update(states=source, dem=dem_source)
+        ds.to_netcdf(out / "footprint.nc", engine="h5netcdf")
+        written.append(out / "footprint.nc")
+    except ImportError as exc:
+        print(f"  (no NetCDF output: {exc}; pip install 'planet-intersect[xarray]')")
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        print("  (matplotlib not installed: no PNG; pip install 'planet-intersect[plot]')")
+    else:
+        if len(fp):
+            fpm.plot_footprint_map(fp, out / "footprint_map.png", color=args.color,
+                                   spectrum=None if n > 1 else 0)
+            written.append(out / "footprint_map.png")
+        _plot_states(out / "orbit.png", R, fp, dem, t)
+        written.append(out / "orbit.png")
+    counts = fp.counts()
+    hidden = int((~fp.visible).sum())
+    print(f"footprint: {n} spectra from {source} over {dem_source}, {len(cells)} cells of {cells.cell_deg:g} deg\n"
+          f"  {len(fp)} (spectrum, cell) pairs, {counts.min()}-{counts.max()} visible cells per spectrum"
+          + (f", {hidden} hidden by terrain" if args.occlusion else "") + f"; {elapsed:.2f} s\n"
+          f"  wrote {', '.join(map(str, written))}")
+    return 0
+
+
+def _concat_footprints(parts, chunk):
+    if len(parts) == 1:
+        return parts[0]
+    import dataclasses
+
+    first = parts[0]
+    kw = {}
+    for f in dataclasses.fields(first):
+        if f.name in ("cells", "airmass_model", "H", "_airmass"):
+            continue
+        if f.name == "spectrum":
+            kw[f.name] = np.concatenate([p.spectrum + k * chunk for k, p in enumerate(parts)])
+        else:
+            kw[f.name] = np.concatenate([getattr(p, f.name) for p in parts])
+    return type(first)(**kw, cells=first.cells, airmass_model=first.airmass_model, H=first.H)
+
+
+def _plot_states(path: Path, R, fp, dem, t) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .geometry import latlon_of, spheroid_radius
+
+    lat, lon = latlon_of(R)
+    alt = np.linalg.norm(R, axis=1) - (spheroid_radius(lat, dem.f, dem.re) if dem.f > 0 else dem.re)
+    x = np.arange(len(R)) if t is None else np.asarray(t) - t[0]
+    counts = fp.counts()
+    fig, axes = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+    axes[0].plot(x, alt, "k.-")
+    axes[0].set_ylabel("altitude above spheroid")
+    axes[1].plot(x, counts, "C0.-")
+    axes[1].set_ylabel("cells in footprint")
+    psi = np.full(len(R), np.nan)
+    if len(fp):
+        psi = np.array([fp.nadir_angle[fp.spectrum == k].max() if counts[k] else np.nan for k in range(len(R))])
+    axes[2].plot(x, psi, "C1.-")
+    axes[2].set_ylabel("largest nadir angle (deg)")
+    axes[2].set_xlabel("spectrum" if t is None else "time since first spectrum")
+    axes[0].set_title(f"{len(R)} spectra: sub-spacecraft latitude {lat.min():.1f} .. {lat.max():.1f} deg", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _add_footprint_parser(sub) -> None:
+    g = sub.add_parser("footprint", help="GRS-style footprint geometry of nadir spectra over a cell table (Odyssey notes)")
+    g.add_argument("--states", help="CSV of planet-fixed state vectors: x,y,z,vx,vy,vz or time,x,y,z,vx,vy,vz (km, km/s)")
+    g.add_argument("--kernels", nargs="+", help="SPICE kernels (SPK, PCK, LSK, ...) to take the states from")
+    g.add_argument("--times", help="with --kernels: file with one UTC time or ET (s past J2000) per line")
+    g.add_argument("--target", default="-53", help="SPICE target (default -53, Mars Odyssey)")
+    g.add_argument("--observer", default="MARS", help="SPICE observer (default MARS)")
+    g.add_argument("--frame", default="IAU_MARS", help="SPICE frame (default IAU_MARS)")
+    g.add_argument("--abcorr", default="NONE", help="SPICE aberration correction (default NONE)")
+    g.add_argument("--dem", help="DEM NAME.hdr in km (default: the MOLA grid in $PI_SHARED_DATA or ../shared/data)")
+    g.add_argument("--mola", help="a MEGDR radius grid to use instead")
+    g.add_argument("--cell-deg", type=float, default=0.5, help="cell size in degrees, dividing 180 (default 0.5)")
+    g.add_argument("--zeta", type=float, help="footprint cone cos(psi) >= ZETA (default: every cell above the horizon)")
+    g.add_argument("--flux-fraction", type=float, help="instead of --zeta: the cone holding this fraction of the flux")
+    g.add_argument("--area", type=float, default=3.4e-9, help="detector area in km^2 (default 3.4e-9, 34 cm^2)")
+    g.add_argument("--occlusion", action="store_true", help="also remove cells hidden by terrain (exact ray casting)")
+    g.add_argument("--color", choices=("solid_angle", "emission"), default="solid_angle", help="map colouring")
+    g.add_argument("--threads", type=int, default=0, help="OpenMP threads (default 0: all cores)")
+    g.add_argument("--chunk", type=int, default=50, help="spectra per call (progress is shown between chunks)")
+    g.add_argument("--out", default="footprint-output", help="results go to a new run-NNN folder here")
+    g.set_defaults(func=_footprint)
+# --- end footprint ------------------------------------------------------------------------------
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="planet-intersect",
                                 description="Where lines of sight meet a planet's DEM (Teanby 2008 ray stepping).")
@@ -370,6 +558,7 @@ def _parser() -> argparse.ArgumentParser:
     what.add_argument("--pkg-config-path", action="store_true",
                       help="the folder of planet-intersect-legacy.pc, for PKG_CONFIG_PATH")
     c.set_defaults(func=_config)
+    _add_footprint_parser(sub)
     return p
 
 

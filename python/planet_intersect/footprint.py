@@ -1,0 +1,1315 @@
+"""Footprint geometry of an orbiting nadir instrument (Mars Odyssey GRS notes).
+
+The package's third system (DESIGN section 10; source document 003, *Mars
+Odyssey/GRS Geometry*). For every spectrum (spacecraft state vector R, v in
+the planet-fixed frame) and every cell of a regular latitude/longitude cell
+table in its footprint: the cell-to-spacecraft vector ``d = R - r_C``, its
+length, the detector's solid angle ``A/|d|^2``, the zenith angles with the
+areocentric and the areodetic normal, the emission angle against the cell's
+topographic normal, the nadir angle, the position angle (clockwise from north
+through east, 0-360), the cell's coordinates in the spacecraft-local frame
+with its azimuth and elevation there, the air mass, and (``occlusion=True``)
+whether the terrain hides the cell, found with the package's exact ray
+casting.
+
+Frame: planet-fixed, x to (0 N, 0 E), z north; latitudes areocentric unless
+named ``*_detic``; east longitudes in [0, 360); angles in degrees; lengths in
+the DEM's units (km for the Mars grids). Every deviation from the notes is a
+numbered note in ``docs/grs-notes.md``; ``[note N]`` marks the line.
+
+>>> cells = pi.CellTable(dem, cell_deg=0.5)
+>>> fp = pi.footprint(cells, R, v, area=3.4e-9, zeta=0.0)
+>>> fp.solid_angle, fp.emission, fp.position_angle, fp.to_xarray()
+"""
+
+from __future__ import annotations
+
+import math
+import weakref
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from .dem import DEM
+
+__all__ = [
+    "CellTable", "FootprintResult", "footprint", "spacecraft_frame", "spacecraft_quaternion",
+    "frame_angles", "orbit_frame", "quat_multiply", "quat_conjugate", "quat_rotate", "quat_to_matrix",
+    "airmass", "chapman", "scale_height", "detic_latitude", "geodetic_latitude", "notes_latitude_series",
+    "position_angle", "position_angle_notes", "visible_cap_area", "keplerian_states", "orbit_study",
+    "OrbitStudy", "plot_orbit_study", "plot_footprint_map", "FOOTPRINT_STATUS",
+    "MARS_GM", "MARS_CO2_MOLECULAR_MASS", "MARS_ROTATION_RATE", "MARS_MEAN_RADIUS_KM", "BOLTZMANN", "AMU",
+    "ODYSSEY_AREA_KM2",
+]
+
+#: Mars GM, km^3/s^2 (GGM1025A, the gravity field of ../shared/data's areoid)
+MARS_GM = 42828.369773939
+#: mean molecular mass of the Mars atmosphere (95 % CO2, N2, Ar), atomic mass units
+MARS_CO2_MOLECULAR_MASS = 43.34
+#: Mars rotation rate, rad/s (350.89198226 deg/day, IAU)
+MARS_ROTATION_RATE = math.radians(350.89198226) / 86400.0
+#: Mars mean radius, km
+MARS_MEAN_RADIUS_KM = 3389.5
+#: Boltzmann constant, J/K (SI, exact)
+BOLTZMANN = 1.380649e-23
+#: atomic mass unit, kg
+AMU = 1.66053906660e-27
+#: the notes' GRS detector cross-section, 34 cm^2, in km^2
+ODYSSEY_AREA_KM2 = 3.4e-9
+
+#: per-spectrum status codes of the Fortran footprint kernel (pi_footprint)
+FOOTPRINT_STATUS = {0: "ok", 1: "spacecraft position NaN/Inf or zero", 2: "spacecraft not above the highest cell",
+                    3: "cell arrays inconsistent", 4: "pair offsets inconsistent"}
+
+
+# ----------------------------------------------------------------------------------------
+# input checks
+# ----------------------------------------------------------------------------------------
+def _vectors(v, name: str) -> np.ndarray:
+    try:
+        a = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: not an array of numbers ({exc})") from None
+    shape = a.shape
+    if a.ndim == 1:
+        a = a[None, :]
+    if a.ndim != 2 or a.shape[1] != 3 or a.shape[0] == 0:
+        raise ValueError(f"{name}: expected shape (3,) or (N, 3) with N >= 1, got {shape}")
+    bad = ~np.isfinite(a).all(axis=1)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise ValueError(f"{name}[{k}] has NaN or Inf components: {a[k]}")
+    return np.ascontiguousarray(a)
+
+
+def _nonzero(a: np.ndarray, name: str) -> np.ndarray:
+    n = np.linalg.norm(a, axis=1)
+    if (n == 0).any():
+        raise ValueError(f"{name}[{int(np.argmax(n == 0))}] has zero length")
+    return n
+
+
+def _real(x, name: str, lo=None, hi=None, lo_open=False) -> float:
+    if isinstance(x, (bool, np.bool_)):
+        raise ValueError(f"{name} must be a number, got {x!r}")
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {x!r}") from None
+    if not math.isfinite(x):
+        raise ValueError(f"{name} must be finite, got {x}")
+    if lo is not None and (x < lo or (lo_open and x == lo)):
+        raise ValueError(f"{name} must be {'>' if lo_open else '>='} {lo}, got {x}")
+    if hi is not None and x > hi:
+        raise ValueError(f"{name} must be <= {hi}, got {x}")
+    return x
+
+
+# ----------------------------------------------------------------------------------------
+# latitudes on the spheroid
+# ----------------------------------------------------------------------------------------
+def detic_latitude(lat_deg, f: float) -> np.ndarray:
+    """Areodetic latitude (deg) of the spheroid point at areocentric latitude ``lat_deg``.
+
+    Exact on the spheroid: ``tan b' = tan b / (1 - e^2)``, ``e^2 = f (2 - f)``
+    (docs/grs-notes.md, note 1), computed as atan2(sin b, (1 - e^2) cos b) so
+    that the poles are exact.
+    """
+    e2 = f * (2.0 - f)
+    b = np.radians(np.asarray(lat_deg, dtype=np.float64))
+    return np.degrees(np.arctan2(np.sin(b), (1.0 - e2) * np.cos(b)))
+
+
+def notes_latitude_series(lat_deg, f: float, corrected: bool = False) -> np.ndarray:
+    """The notes' series for the areodetic latitude (deg), as printed or corrected.
+
+    As printed: ``b' = b - m sin 2b + (1/2) m^2 sin^2 b`` with ``m = e^2/(2 - e^2)``
+    (note 1: wrong sign, and ``sin^2 b`` is not a term of the series). Corrected:
+    the series of ``tan b' = tan b/(1 - e^2)`` in ``m``:
+    ``b' = b + m sin 2b + (1/2) m^2 sin 4b + ...`` (``tan(b' - b) = m sin 2b / (1 - m cos 2b)``).
+    """
+    e2 = f * (2.0 - f)
+    m = e2 / (2.0 - e2)
+    b = np.radians(np.asarray(lat_deg, dtype=np.float64))
+    if corrected:
+        out = b + m * np.sin(2 * b) + 0.5 * m * m * np.sin(4 * b)
+    else:
+        out = b - m * np.sin(2 * b) + 0.5 * m * m * np.sin(b) ** 2      # as printed [note 1]
+    return np.degrees(out)
+
+
+def geodetic_latitude(p, re: float, f: float, tol: float = 1e-15, max_iter: int = 20):
+    """Areodetic latitude (deg) and height above the spheroid of points ``p`` (N, 3).
+
+    Full conversion for points off the spheroid (Bowring's iteration on the
+    parametric latitude, to ``tol`` radians, at most ``max_iter`` steps; it
+    converges in two or three for points near the surface). ``f = 0`` gives the
+    areocentric latitude and the height above the sphere ``re``.
+    """
+    p = np.atleast_2d(np.asarray(p, dtype=np.float64))
+    a = re
+    b = re * (1.0 - f)
+    e2 = f * (2.0 - f)
+    ep2 = e2 / (1.0 - e2) if f < 1 else np.inf
+    x, z = np.hypot(p[:, 0], p[:, 1]), p[:, 2]
+    u = np.arctan2(z, (1.0 - f) * x)
+    phi = np.arctan2(z, x)
+    for _ in range(max_iter):
+        phi_new = np.arctan2(z + ep2 * b * np.sin(u) ** 3, x - e2 * a * np.cos(u) ** 3)
+        u = np.arctan2((1.0 - f) * np.sin(phi_new), np.cos(phi_new))
+        done = np.all(np.abs(phi_new - phi) <= tol)
+        phi = phi_new
+        if done:
+            break
+    # height along the normal (stable form for all latitudes)
+    sphi, cphi = np.sin(phi), np.cos(phi)
+    nrad = a / np.sqrt(1.0 - e2 * sphi * sphi)
+    h = x * cphi + z * sphi - a * a / nrad
+    return np.degrees(phi), h
+
+
+# ----------------------------------------------------------------------------------------
+# the cell table
+# ----------------------------------------------------------------------------------------
+_CELL_CACHE: "weakref.WeakKeyDictionary[DEM, dict]" = weakref.WeakKeyDictionary()
+#: bytes per cell of a CellTable (its arrays) and the largest table built
+_CELL_BYTES = 8 * 26
+_CELL_TABLE_MAX_BYTES = 16e9
+
+
+class CellTable:
+    """The notes' ``cell_tab``: fixed properties of every cell, computed once per DEM and cell size.
+
+    Cells are ``cell_deg x cell_deg`` boxes bounded by meridians and parallels,
+    row-major from the south-west: cell ``k = i*ncol + j`` has its centre at
+    areocentric latitude ``-90 + (i + 1/2) cell_deg`` and east longitude
+    ``(j + 1/2) cell_deg`` (the DEM's own registration). ``cell_deg`` must
+    divide 180.
+
+    How each quantity is made (docs/grs-notes.md, note 3):
+
+    * The cell's surface is fitted by least squares with a plane in the local
+      angular frame, ``r(b, l) = r0 + g_b (b - b0) + g_l (l - l0)``, through the
+      DEM samples in the cell (when ``cell_deg * ppd`` is an integer >= 2: the
+      pixel centres inside it), else through the DEM's bilinear surface sampled
+      at 4 x 4 points spread evenly over the cell. The sample grid is symmetric
+      about the centre in (b, l), so r0 is the samples' mean and the gradient
+      is free of the curvature terms that tilt a Cartesian plane fit over a
+      trapezoidal cell (measured on the Mars spheroid, 0.5 deg cells: 1.2e-6 rad
+      at 45 deg for a Cartesian plane, 1.9e-8 rad for this fit).
+    * ``r``: the centre point ``r0 u``, u the unit vector to (lat, lon): the
+      cell's mean radius rather than the DEM at the centre, because the GRS
+      integrates over the cell; for 0.5 deg cells on a 4 ppd grid the two are
+      identical (the bilinear surface at the centre of four pixel centres is
+      their mean).
+    * ``normal``: the unit outward normal of the fitted surface at the centre,
+      ``u - (g_b/r0) north - (g_l/(r0 cos b)) east``, normalised; an (x, y, z)
+      unit vector as the notes advise.
+    * ``lat_detic``: areodetic latitude of the point ``r`` itself (full
+      conversion, off the spheroid), ``lat_detic_spheroid`` that of the
+      spheroid point at the same areocentric latitude (``tan b' = tan b/(1-e^2)``),
+      ``normal_detic`` the spheroid normal at (lat_detic, lon). The spheroid is
+      the DEM's own (re, f), not the notes' f = 1/154.409 [note 2].
+    * ``area``: the area of the cell's latitude/longitude box on the sphere of
+      radius r0, ``r0^2 dl (sin b_n - sin b_s)`` (DEM units squared).
+    * ``radius_dem``: the DEM's bilinear radius at the centre (the target point
+      of the occlusion rays).
+
+    Tables are cached with the DEM: ``CellTable(dem, 0.5)`` a second time shares
+    the arrays (read-only).
+    """
+
+    def __init__(self, dem: DEM, cell_deg: float = 0.5):
+        if not isinstance(dem, DEM):
+            raise TypeError(f"dem must be a planet_intersect.DEM, got {type(dem).__name__}")
+        cell_deg = _real(cell_deg, "cell_deg", lo=0.0, lo_open=True, hi=180.0)
+        nrow = int(round(180.0 / cell_deg))
+        if nrow < 1 or abs(nrow * cell_deg - 180.0) > 1e-9 * 180.0:
+            raise ValueError(f"cell_deg must divide 180 (0.5, 1, 0.25, ...), got {cell_deg}")
+        cell_deg = 180.0 / nrow
+        need = 2 * nrow * nrow * _CELL_BYTES
+        if need > _CELL_TABLE_MAX_BYTES:
+            raise ValueError(f"cell_deg = {cell_deg:g} makes {2 * nrow * nrow:,} cells, about {need / 1e9:.0f} GB "
+                             f"of cell table (the limit is {_CELL_TABLE_MAX_BYTES / 1e9:.0f} GB): use larger cells")
+        self.dem = dem
+        self.cell_deg = cell_deg
+        self.nrow = nrow
+        self.ncol = 2 * nrow
+        key = round(cell_deg, 12)
+        per_dem = _CELL_CACHE.setdefault(dem, {})
+        if key not in per_dem:
+            per_dem[key] = _build_cells(dem, nrow)
+        for name, value in per_dem[key].items():
+            setattr(self, name, value)
+
+    def __len__(self) -> int:
+        return self.nrow * self.ncol
+
+    def __repr__(self) -> str:
+        return f"CellTable({self.nrow} x {self.ncol} cells of {self.cell_deg} deg, {self.dem!r})"
+
+    def index(self, lat, lon) -> np.ndarray:
+        """Index of the cell holding each (areocentric lat, east lon) in degrees."""
+        lat = np.asarray(lat, dtype=np.float64)
+        lon = np.asarray(lon, dtype=np.float64) % 360.0
+        i = np.clip(np.floor((lat + 90.0) / self.cell_deg).astype(np.int64), 0, self.nrow - 1)
+        j = np.clip(np.floor(lon / self.cell_deg).astype(np.int64), 0, self.ncol - 1)
+        return i * self.ncol + j
+
+    def to_xarray(self):
+        """The table as an ``xarray.Dataset`` with dimension ``cell`` (and ``xyz``)."""
+        import xarray as xr
+
+        data = {}
+        for name in ("lat", "lon", "lat_detic", "lat_detic_spheroid", "radius", "radius_dem", "area", "slope"):
+            data[name] = ("cell", getattr(self, name))
+        for name in ("r", "normal", "normal_detic"):
+            data[name] = (("cell", "xyz"), getattr(self, name))
+        ds = xr.Dataset(data, coords={"cell": np.arange(len(self)), "xyz": ["x", "y", "z"]})
+        ds.attrs.update(cell_deg=self.cell_deg, nrow=self.nrow, ncol=self.ncol, re=self.dem.re, f=self.dem.f,
+                        angles="degrees; lat areocentric, lat_detic areodetic, lon east [0, 360)",
+                        normal="least-squares plane in (lat, lon, r) through the DEM samples in the cell",
+                        area="r0^2 dlon (sin lat_n - sin lat_s), DEM units squared")
+        return ds
+
+
+def _cell_samples(dem: DEM, nrow: int):
+    """Yield (row slice, sample radii [rows, nb, ncol, nl], dlat offsets (rad, nb), dlon offsets (rad, nl))."""
+    cd = 180.0 / nrow
+    ncol = 2 * nrow
+    kk = cd * dem.ppd
+    k = int(round(kk))
+    block = abs(kk - k) < 1e-9 and k >= 2
+    if block:
+        offs = np.radians((np.arange(k) + 0.5) / dem.ppd - cd / 2.0)
+        rows_per = max(1, (4 << 20) // (k * k * ncol))
+        for i0 in range(0, nrow, rows_per):
+            i1 = min(nrow, i0 + rows_per)
+            raw = np.asarray(dem.radii[i0 * k:i1 * k], dtype=np.float64)
+            yield slice(i0, i1), raw.reshape(i1 - i0, k, ncol, k), offs, offs
+    else:
+        ns = 4
+        frac = (np.arange(ns) + 0.5) / ns - 0.5
+        offs = np.radians(frac * cd)
+        rows_per = max(1, (2 << 20) // (ns * ns * ncol))
+        for i0 in range(0, nrow, rows_per):
+            i1 = min(nrow, i0 + rows_per)
+            lat_c = -90.0 + (np.arange(i0, i1) + 0.5) * cd
+            lon_c = (np.arange(ncol) + 0.5) * cd
+            la = lat_c[:, None, None, None] + frac[None, :, None, None] * cd
+            lo = lon_c[None, None, :, None] + frac[None, None, None, :] * cd
+            la, lo = np.broadcast_arrays(la, lo)
+            yield slice(i0, i1), dem.radius(la, lo % 360.0), offs, offs
+
+
+def _build_cells(dem: DEM, nrow: int) -> dict:
+    cd = 180.0 / nrow
+    ncol = 2 * nrow
+    r0 = np.empty((nrow, ncol))
+    gb = np.empty((nrow, ncol))
+    gl = np.empty((nrow, ncol))
+    for rows, samp, ob, ol in _cell_samples(dem, nrow):
+        # least squares on a symmetric grid: mean and the two separable slopes [note 3]
+        r0[rows] = samp.mean(axis=(1, 3))
+        gb[rows] = np.einsum("ibjl,b->ij", samp, ob) / (samp.shape[3] * np.sum(ob * ob))
+        gl[rows] = np.einsum("ibjl,l->ij", samp, ol) / (samp.shape[1] * np.sum(ol * ol))
+    lat = -90.0 + (np.arange(nrow) + 0.5) * cd
+    lon = (np.arange(ncol) + 0.5) * cd
+    LAT, LON = np.meshgrid(lat, lon, indexing="ij")
+    b, l = np.radians(LAT), np.radians(LON)
+    sb, cb, sl, cl = np.sin(b), np.cos(b), np.sin(l), np.cos(l)
+    u = np.stack([cb * cl, cb * sl, sb], axis=-1)
+    north = np.stack([-sb * cl, -sb * sl, cb], axis=-1)
+    east = np.stack([-sl, cl, np.zeros_like(sl)], axis=-1)
+    normal = u - (gb / r0)[..., None] * north - (gl / (r0 * cb))[..., None] * east
+    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    r = r0[..., None] * u
+    lat_detic, _ = geodetic_latitude(r.reshape(-1, 3), dem.re, dem.f)
+    bd = np.radians(lat_detic).reshape(nrow, ncol)
+    ndet = np.stack([np.cos(bd) * cl, np.cos(bd) * sl, np.sin(bd)], axis=-1)
+    half = math.radians(cd) / 2
+    area = r0 * r0 * math.radians(cd) * (np.sin(b + half) - np.sin(b - half))
+    slope = np.degrees(np.arctan2(np.linalg.norm(np.cross(normal, ndet), axis=-1), np.sum(normal * ndet, axis=-1)))
+    radius_dem = dem.radius(LAT.ravel(), LON.ravel())
+    out = dict(
+        lat=LAT.ravel(), lon=LON.ravel(), lat_detic=lat_detic,
+        lat_detic_spheroid=detic_latitude(LAT.ravel(), dem.f),
+        radius=r0.ravel(), r=r.reshape(-1, 3), u=u.reshape(-1, 3), normal=normal.reshape(-1, 3),
+        normal_detic=ndet.reshape(-1, 3), area=area.ravel(), slope=slope.ravel(), radius_dem=radius_dem,
+    )
+    if not (np.isfinite(r0).all() and (r0 > 0).all()):
+        raise ValueError("CellTable: a cell's mean radius is not positive and finite")
+    for v in out.values():
+        v.flags.writeable = False
+    out["radius_range"] = (float(r0.min()), float(r0.max()))
+    return out
+
+
+# ----------------------------------------------------------------------------------------
+# quaternions and the spacecraft-local frame
+# ----------------------------------------------------------------------------------------
+def quat_multiply(p, q) -> np.ndarray:
+    """Hamilton product of quaternions (w, x, y, z), scalar first, broadcasting over (..., 4).
+
+    The notes' definition: ``pq = p0 q0 - p.q + p0 q + q0 p + p x q``.
+    """
+    p = np.asarray(p, dtype=np.float64)
+    q = np.asarray(q, dtype=np.float64)
+    p0, pv = p[..., :1], p[..., 1:]
+    q0, qv = q[..., :1], q[..., 1:]
+    w = p0 * q0 - np.sum(pv * qv, axis=-1, keepdims=True)
+    v = p0 * qv + q0 * pv + np.cross(pv, qv)
+    return np.concatenate([w, v], axis=-1)
+
+
+def quat_conjugate(q) -> np.ndarray:
+    """``q* = q0 - q`` (the notes' conjugate)."""
+    q = np.asarray(q, dtype=np.float64)
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def quat_rotate(q, v) -> np.ndarray:
+    """The vector part of ``q v q*`` (v as a pure quaternion): the notes' ``L_q(v)``."""
+    v = np.asarray(v, dtype=np.float64)
+    vq = np.concatenate([np.zeros(v.shape[:-1] + (1,)), v], axis=-1)
+    return quat_multiply(quat_multiply(q, vq), quat_conjugate(q))[..., 1:]
+
+
+def quat_to_matrix(q) -> np.ndarray:
+    """Rotation matrix G of a unit quaternion: ``G v = q v q*`` (..., 3, 3)."""
+    q = np.asarray(q, dtype=np.float64)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    G = np.empty(q.shape[:-1] + (3, 3))
+    G[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    G[..., 0, 1] = 2 * (x * y - w * z)
+    G[..., 0, 2] = 2 * (x * z + w * y)
+    G[..., 1, 0] = 2 * (x * y + w * z)
+    G[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    G[..., 1, 2] = 2 * (y * z - w * x)
+    G[..., 2, 0] = 2 * (x * z - w * y)
+    G[..., 2, 1] = 2 * (y * z + w * x)
+    G[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return G
+
+
+def _axis_quat(axis, angle) -> np.ndarray:
+    """Unit quaternion of a right-handed rotation by ``angle`` (rad) about a unit ``axis``."""
+    angle = np.asarray(angle, dtype=np.float64)
+    h = 0.5 * angle
+    return np.concatenate([np.cos(h)[..., None], np.sin(h)[..., None] * np.asarray(axis, dtype=np.float64)], axis=-1)
+
+
+def _passive(axis: str, t) -> np.ndarray:
+    """The notes' frame-rotation matrices Rx(t), Ry(t), Rz(t) (..., 3, 3): coordinates in the rotated frame."""
+    t = np.asarray(t, dtype=np.float64)
+    c, s = np.cos(t), np.sin(t)
+    o, z = np.ones_like(t), np.zeros_like(t)
+    if axis == "x":
+        rows = [[o, z, z], [z, c, s], [z, -s, c]]
+    elif axis == "y":
+        rows = [[c, z, -s], [z, o, z], [s, z, c]]
+    else:
+        rows = [[c, s, z], [-s, c, z], [z, z, o]]
+    return np.moveaxis(np.array(rows), (0, 1), (-2, -1))
+
+
+def frame_angles(R, v):
+    """The notes' recommended rotation angles (radians) from state vectors.
+
+    ``lam``: east longitude of the sub-spacecraft point; ``beta``: its
+    areocentric latitude; ``alpha``: the angle of the non-radial velocity
+    ``v_perp = v - (R_hat . v) R_hat`` from the local parallel (east) toward
+    north, from atan2 so that a southbound track has alpha < 0 (the notes'
+    arccos gives only 0-180 deg, note 8). Raises ValueError when the velocity
+    is radial (the along-track direction is undefined).
+    """
+    R = _vectors(R, "R")
+    v = _vectors(v, "v")
+    if len(v) != len(R) and len(v) != 1 and len(R) != 1:
+        raise ValueError(f"R and v: {len(R)} positions do not broadcast against {len(v)} velocities")
+    n = max(len(R), len(v))
+    R = np.broadcast_to(R, (n, 3))
+    v = np.broadcast_to(v, (n, 3))
+    rn = _nonzero(R, "R")
+    rh = R / rn[:, None]
+    lam = np.arctan2(rh[:, 1], rh[:, 0])
+    beta = np.arctan2(rh[:, 2], np.hypot(rh[:, 0], rh[:, 1]))
+    vperp = v - np.sum(v * rh, axis=1)[:, None] * rh
+    vp = np.linalg.norm(vperp, axis=1)
+    vn = np.linalg.norm(v, axis=1)
+    flat = ~(vp > 1e-12 * np.maximum(vn, 1e-300))
+    if flat.any():
+        k = int(np.argmax(flat))
+        raise ValueError(f"v[{k}] = {v[k]} has no component perpendicular to R[{k}]: the along-track axis is undefined")
+    east = np.stack([-np.sin(lam), np.cos(lam), np.zeros(n)], axis=1)
+    north = np.stack([-np.sin(beta) * np.cos(lam), -np.sin(beta) * np.sin(lam), np.cos(beta)], axis=1)
+    alpha = np.arctan2(np.sum(vperp * north, axis=1), np.sum(vperp * east, axis=1))   # [note 8]
+    return lam, beta, alpha
+
+
+def spacecraft_quaternion(R, v) -> np.ndarray:
+    """The spacecraft-local frame as a unit quaternion (w, x, y, z), scalar first.
+
+    ``q = q_{+z}(lam) q_{-y}(beta) q_{+x}(alpha)`` (the notes' recommended
+    sequence with beta, not 90 deg + beta, and no conjugates: note 9), where
+    ``q_{axis}(t) = cos(t/2) + axis sin(t/2)``. Direction: ``q e_i q*`` is the
+    frame's i-th axis in the planet frame (``quat_to_matrix(q)`` = M^T), so the
+    coordinates of a planet-frame vector w in the spacecraft frame are
+    ``q* w q`` (the notes' L_q*, a frame rotation) = ``M w``.
+    Shape (4,) for one state vector, (N, 4) for N.
+    """
+    single = np.ndim(R) == 1 and np.ndim(v) == 1
+    lam, beta, alpha = frame_angles(R, v)
+    q = quat_multiply(quat_multiply(_axis_quat([0, 0, 1], lam), _axis_quat([0, -1, 0], beta)),
+                      _axis_quat([1, 0, 0], alpha))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return q[0] if single else q
+
+
+def spacecraft_frame(R, v, method: str = "state") -> np.ndarray:
+    """The spacecraft-local frame M: rows are the frame's unit axes in the planet frame.
+
+    x = R/|R| (the zenith, up at the sub-spacecraft point); y = the unit
+    non-radial velocity (along the ground track, forward); z = x cross y (to
+    the left of the track seen from above). Coordinates of a planet-frame
+    vector w in this frame are ``M @ w`` [note 9].
+
+    method: "state" (the axes built directly from R and v), "rotations" (the
+    notes' recommended sequence as matrices: ``Rx(alpha) Ry(-beta) Rz(lam)``
+    in the notes' frame-rotation matrices), "quaternion" (from
+    :func:`spacecraft_quaternion`), "orbit" (the notes' first construction,
+    ``Rz(nu) Rx(i) Rz(Omega)`` with the ascending node, inclination and
+    argument of latitude of the osculating orbit of (R, v) in the planet-fixed
+    frame, :func:`orbit_frame`). All four agree to rounding (tested, 1e-12).
+    Shape (3, 3) for one state vector, (N, 3, 3) for N.
+    """
+    single = np.ndim(R) == 1 and np.ndim(v) == 1
+    if method == "state":
+        lam, beta, alpha = frame_angles(R, v)          # validates; the angles are not used
+        Rv = np.broadcast_to(_vectors(R, "R"), (len(lam), 3))
+        vv = np.broadcast_to(_vectors(v, "v"), (len(lam), 3))
+        x = Rv / np.linalg.norm(Rv, axis=1, keepdims=True)
+        y = vv - np.sum(vv * x, axis=1)[:, None] * x
+        y /= np.linalg.norm(y, axis=1, keepdims=True)
+        M = np.stack([x, y, np.cross(x, y)], axis=1)
+    elif method == "rotations":
+        lam, beta, alpha = frame_angles(R, v)
+        M = _passive("x", alpha) @ _passive("y", -beta) @ _passive("z", lam)
+    elif method == "quaternion":
+        q = np.atleast_2d(spacecraft_quaternion(R, v))
+        M = np.swapaxes(quat_to_matrix(q), -1, -2)
+    elif method == "orbit":
+        M = orbit_frame(R, v)[0]
+        M = np.atleast_3d(M) if M.ndim == 2 else M
+        M = M.reshape(-1, 3, 3)
+    else:
+        raise ValueError(f"method must be 'state', 'rotations', 'quaternion' or 'orbit', got {method!r}")
+    return M[0] if single else M
+
+
+def orbit_frame(R, v):
+    """The notes' first construction: node, inclination and argument (matrices and quaternion).
+
+    From the osculating orbit of (R, v) in the planet-fixed frame: h = R x v,
+    inclination i = angle of h from +z, ascending node Omega = longitude of
+    z x h (0 for an equatorial orbit), argument of latitude nu = angle from the
+    node to R in the orbit plane. Returns ``(M, q, (Omega, i, nu))`` with
+    ``M = Rz(nu) Rx(i) Rz(Omega)`` (the notes' frame-rotation matrices; the
+    notes print the first factor as an x rotation, note 10) and
+    ``q = q_z(Omega) q_x(i) q_z(nu)``. The frame equals :func:`spacecraft_frame`'s.
+    """
+    R = _vectors(R, "R")
+    v = _vectors(v, "v")
+    n = max(len(R), len(v))
+    R = np.broadcast_to(R, (n, 3))
+    v = np.broadcast_to(v, (n, 3))
+    h = np.cross(R, v)
+    hn = np.linalg.norm(h, axis=1)
+    if (hn == 0).any():
+        k = int(np.argmax(hn == 0))
+        raise ValueError(f"v[{k}] is parallel to R[{k}]: no orbit plane")
+    inc = np.arctan2(np.hypot(h[:, 0], h[:, 1]), h[:, 2])
+    node = np.stack([-h[:, 1], h[:, 0], np.zeros(n)], axis=1)           # z x h
+    nn = np.linalg.norm(node, axis=1)
+    node = np.where(nn[:, None] > 1e-15 * hn[:, None], node, np.array([1.0, 0.0, 0.0]))
+    node /= np.linalg.norm(node, axis=1, keepdims=True)
+    omega = np.arctan2(node[:, 1], node[:, 0])
+    hh = h / hn[:, None]
+    nu = np.arctan2(np.sum(np.cross(node, R) * hh, axis=1), np.sum(node * R, axis=1))
+    M = _passive("z", nu) @ _passive("x", inc) @ _passive("z", omega)
+    q = quat_multiply(quat_multiply(_axis_quat([0, 0, 1], omega), _axis_quat([1, 0, 0], inc)),
+                      _axis_quat([0, 0, 1], nu))
+    return M, q, (omega, inc, nu)
+
+
+# ----------------------------------------------------------------------------------------
+# position angle
+# ----------------------------------------------------------------------------------------
+def position_angle(R, r_c) -> np.ndarray:
+    """Position angle (deg, [0, 360)) of points r_c seen from the sub-spacecraft point of R.
+
+    Clockwise from north (toward the north pole along the sub-spacecraft
+    meridian) through east: ``atan2(u . E, u . N)`` with u = r_c/|r_c|,
+    E = z x R_hat and N = z - (z . R_hat) R_hat (both |.| = cos beta, which
+    cancels) [note 5]. NaN over a pole and at the sub-spacecraft point itself.
+    Broadcasts R (3,)/(N, 3) against r_c (3,)/(N, 3).
+    """
+    R = np.atleast_2d(np.asarray(R, dtype=np.float64))
+    r_c = np.atleast_2d(np.asarray(r_c, dtype=np.float64))
+    rh = R / np.linalg.norm(R, axis=-1, keepdims=True)
+    u = r_c / np.linalg.norm(r_c, axis=-1, keepdims=True)
+    E = np.stack([-rh[:, 1], rh[:, 0], np.zeros(len(rh))], axis=1)
+    N = np.stack([-rh[:, 2] * rh[:, 0], -rh[:, 2] * rh[:, 1], 1 - rh[:, 2] ** 2], axis=1)
+    x = np.sum(u * E, axis=1)
+    y = np.sum(u * N, axis=1)
+    pa = np.degrees(np.arctan2(x, y)) % 360.0
+    pa = np.where(pa >= 360.0, 0.0, pa)
+    bad = (np.hypot(rh[:, 0], rh[:, 1]) <= 1e-12) | ((x == 0) & (y == 0))
+    return np.where(bad, np.nan, pa)
+
+
+def position_angle_notes(R, r_c, normalize: bool = False) -> np.ndarray:
+    """The notes' position-angle recipe (deg), literally or with unit vectors.
+
+    ``Q1 = P_hat x R_hat``, ``Q2 = R_hat x r_hat``,
+    ``cos PA = (R_hat x Q1) . (Q2 x R_hat)``. Taken literally the two cross
+    products are not unit vectors (``|R_hat x Q1| = cos beta_sc``,
+    ``|Q2 x R_hat| = sin`` of the cell's central angle), so cos PA is far too
+    small and PA comes out near 90 deg for every cell; normalised, arccos still
+    gives only 0-180 deg and cannot tell east from west [note 5].
+    """
+    R = np.atleast_2d(np.asarray(R, dtype=np.float64))
+    r_c = np.atleast_2d(np.asarray(r_c, dtype=np.float64))
+    rh = R / np.linalg.norm(R, axis=-1, keepdims=True)
+    rc = r_c / np.linalg.norm(r_c, axis=-1, keepdims=True)
+    P = np.array([0.0, 0.0, 1.0])
+    q1 = np.cross(P, rh)
+    q2 = np.cross(rh, rc)
+    a = np.cross(rh, q1)
+    b = np.cross(q2, rh)
+    if normalize:
+        a /= np.linalg.norm(a, axis=-1, keepdims=True)
+        b /= np.linalg.norm(b, axis=-1, keepdims=True)
+    return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=-1), -1.0, 1.0)))
+
+
+# ----------------------------------------------------------------------------------------
+# scale height and air mass
+# ----------------------------------------------------------------------------------------
+def scale_height(T: float = 210.0, r: float = MARS_MEAN_RADIUS_KM, GM: float = MARS_GM,
+                 molecular_mass: float = MARS_CO2_MOLECULAR_MASS) -> float:
+    """Atmospheric scale height ``H = k T / (m g)`` with ``g = GM / r^2``, in km.
+
+    T in K (default 210 K, a Mars mean near-surface temperature); r in km (the
+    radius where g is taken, default the Mars mean radius 3389.5 km); GM in
+    km^3/s^2 (default Mars, GGM1025A); molecular_mass in atomic mass units
+    (default 43.34, the mean of Mars' CO2-dominated atmosphere). Mars defaults
+    give H = 10.8 km at 210 K.
+    """
+    T = _real(T, "T", lo=0.0, lo_open=True)
+    r = _real(r, "r", lo=0.0, lo_open=True)
+    GM = _real(GM, "GM", lo=0.0, lo_open=True)
+    molecular_mass = _real(molecular_mass, "molecular_mass", lo=0.0, lo_open=True)
+    g = GM * 1e9 / (r * 1e3) ** 2                                  # m/s^2
+    return BOLTZMANN * T / (molecular_mass * AMU * g) / 1e3        # km
+
+
+# Gauss-Legendre panels on tau in [0, 40] for the Chapman integral (see _chapman_le90)
+def _chapman_nodes():
+    x, w = np.polynomial.legendre.leggauss(24)
+    edges = [0.0, 0.5, 1.5, 3.5, 7.0, 12.0, 20.0, 30.0, 40.0]
+    nodes, weights = [], []
+    for a, b in zip(edges[:-1], edges[1:]):
+        nodes.append(0.5 * (b - a) * x + 0.5 * (b + a))
+        weights.append(0.5 * (b - a) * w)
+    return np.concatenate(nodes), np.concatenate(weights)
+
+
+_CH_T, _CH_W = _chapman_nodes()
+
+
+def _chapman_le90(x: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Exact Chapman function Ch(x, z) for 0 <= z <= 90 deg (z in radians), x = R/H.
+
+    Ch = (1/H) int_0^inf exp(-(r(s) - R)/H) ds along the straight line from
+    radius R at zenith angle z. With c = x sin z, a = x - c and the height
+    variable written as y = (sqrt(a) + s)^2 - a, the integrand becomes smooth:
+    ``Ch = 2 int_0^inf exp(-2 sqrt(a) s - s^2) (c + (sqrt(a) + s)^2) / sqrt((sqrt(a) + s)^2 + 2c) ds``
+    (no singularity at z = 90 deg, no overflow). Scaled by the e-folding
+    length s1 = 1/(sqrt(a) + sqrt(a + 1)) the exponent is >= tau beyond
+    tau = 1, so panels of Gauss-Legendre nodes on [0, 40] integrate it to
+    rounding (the tail beyond is < 5e-18).
+    """
+    c = x * np.sin(z)
+    a = x * (1.0 - np.sin(z))
+    a = np.maximum(a, 0.0)
+    sa = np.sqrt(a)
+    s1 = 1.0 / (sa + np.sqrt(a + 1.0))
+    out = np.empty(np.shape(x))
+    flat_n = out.size
+    cf, af, saf, s1f = c.ravel(), a.ravel(), sa.ravel(), s1.ravel()
+    res = out.ravel()
+    step = max(1, (1 << 22) // _CH_T.size)
+    for i in range(0, flat_n, step):
+        sl = slice(i, i + step)
+        s = s1f[sl, None] * _CH_T[None, :]
+        w = saf[sl, None] + s
+        f = np.exp(-2.0 * saf[sl, None] * s - s * s) * (cf[sl, None] + w * w) / np.sqrt(w * w + 2.0 * cf[sl, None])
+        res[sl] = 2.0 * s1f[sl] * (f @ _CH_W)
+    return res.reshape(np.shape(x))
+
+
+def chapman(x, z_deg) -> np.ndarray:
+    """Exact Chapman function Ch(x, z): relative air mass of a spherically stratified
+    exponential atmosphere, x = R/H, zenith angle z in degrees, 0 <= z <= 180.
+
+    Beyond 90 deg the line first descends to its tangent radius R sin z:
+    ``Ch(x, z) = 2 exp(x (1 - sin z)) Ch(x sin z, 90) - Ch(x, 180 - z)`` (the
+    line integral is symmetric about the tangent point). Returns inf where the
+    value overflows (x (1 - sin z) > ~700).
+    """
+    x, z = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(z_deg, dtype=np.float64))
+    zr = np.radians(z)
+    out = np.full(x.shape, np.nan)
+    ok = np.isfinite(x) & np.isfinite(z) & (x > 0) & (z >= 0) & (z <= 180)
+    lo = ok & (z <= 90)
+    out[lo] = _chapman_le90(x[lo], zr[lo])
+    hi = ok & (z > 90)
+    if hi.any():
+        xs, zs = x[hi], zr[hi]
+        sz = np.sin(zs)
+        with np.errstate(over="ignore"):
+            grow = np.exp(xs * (1.0 - sz))
+        out[hi] = 2.0 * grow * _chapman_le90(xs * sz, np.full(xs.shape, np.pi / 2)) - _chapman_le90(xs, np.pi - zs)
+    return out
+
+
+_AIRMASS_MODELS = ("secant", "notes", "hardie", "chapman")
+
+
+def airmass(z_deg, H: float | None = None, R: float | np.ndarray | None = None, model: str = "chapman") -> np.ndarray:
+    """Relative air mass at zenith angle ``z_deg`` (degrees).
+
+    model:
+
+    * "secant": plane parallel, ``sec z`` (inf at 90 deg, NaN beyond).
+    * "notes": the notes' spherical series exactly as printed,
+      ``sec z - 0.018167 (sec z - 1)^2 - 0.002875 (sec z - 1)^3 - 0.0008083 (sec z - 1)^4``
+      (Hardie's fit with the first coefficient ten times his and every power
+      one higher: 12 % low at 80 deg and negative at 85 deg for Mars, note 4);
+      NaN at and beyond 90 deg.
+    * "hardie": Hardie (1962), ``sec z - 0.0018167 (sec z - 1) - 0.002875 (sec z - 1)^2
+      - 0.0008083 (sec z - 1)^3`` (a fit for Earth's atmosphere, z < ~85 deg); NaN at and beyond 90 deg.
+    * "chapman": exact for a spherically stratified exponential atmosphere of
+      scale height H (km) above radius R (km), valid from 0 to 180 deg
+      (:func:`chapman` with x = R/H). H defaults to :func:`scale_height` (Mars,
+      210 K), R to the Mars mean radius.
+    """
+    if model not in _AIRMASS_MODELS:
+        raise ValueError(f"model must be one of {', '.join(_AIRMASS_MODELS)}, got {model!r}")
+    z = np.asarray(z_deg, dtype=np.float64)
+    if np.isnan(z).any() or (np.abs(z[np.isfinite(z)]) > 180).any() or (z < 0).any() or np.isinf(z).any():
+        raise ValueError("z_deg: zenith angles must be finite and within [0, 180] degrees")
+    if model == "chapman":
+        H = scale_height() if H is None else _real(H, "H", lo=0.0, lo_open=True)
+        if R is None:
+            R = MARS_MEAN_RADIUS_KM
+        R = np.asarray(R, dtype=np.float64)
+        if not (np.isfinite(R).all() and (R > 0).all()):
+            raise ValueError("R: radii must be positive and finite")
+        return chapman(R / H, z)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sec = 1.0 / np.cos(np.radians(z))
+    sec = np.where(z == 90.0, np.inf, sec)
+    if model == "secant":
+        return np.where(z > 90.0, np.nan, sec)
+    s1 = sec - 1.0
+    with np.errstate(invalid="ignore"):
+        if model == "notes":
+            x = sec - 0.018167 * s1 ** 2 - 0.002875 * s1 ** 3 - 0.0008083 * s1 ** 4     # as printed [note 4]
+        else:
+            x = sec - 0.0018167 * s1 - 0.002875 * s1 ** 2 - 0.0008083 * s1 ** 3       # Hardie (1962)
+    return np.where(z >= 90.0, np.nan, x)
+
+
+# ----------------------------------------------------------------------------------------
+# the footprint
+# ----------------------------------------------------------------------------------------
+_PAIR_FIELDS = ("spectrum", "cell", "d", "distance", "solid_angle", "zenith_centric", "zenith_detic", "emission",
+                "nadir_angle", "position_angle", "gsh", "azimuth", "elevation", "visible")
+
+
+@dataclass
+class FootprintResult:
+    """Geometry of every (spectrum, cell) pair in the footprints, flat over the pairs.
+
+    Pairs are ordered by spectrum, then cell row (south to north), then
+    column. Angles in degrees, lengths in the DEM's units.
+
+    spectrum, cell : int arrays
+        Index of the state vector and of the cell (into the :class:`CellTable`).
+    d : (M, 3)
+        ``R - r_C``, from the cell to the spacecraft, planet frame.
+    distance, solid_angle :
+        ``|d|`` and ``area/|d|^2`` (sr).
+    zenith_centric, zenith_detic, emission :
+        Angle of d from the areocentric normal r_C/|r_C|, the spheroid normal at
+        the cell's areodetic latitude, and the cell's topographic normal.
+    nadir_angle :
+        psi, ``cos psi = d_hat . R_hat``.
+    position_angle :
+        Azimuth of the cell from the sub-spacecraft point, clockwise from north
+        through east, [0, 360).
+    gsh : (M, 3)
+        ``r_C - R`` in the spacecraft frame (x up, y along track, z left).
+    azimuth, elevation :
+        Direction of the cell in the spacecraft frame: azimuth from +y (forward)
+        toward +z (left), [0, 360); elevation above the y-z plane (negative below).
+    visible : bool
+        False when ``occlusion=True`` found the terrain blocking the line to the
+        spacecraft (such pairs stay in the arrays; the footprint proper is
+        ``fp.subset(fp.visible)``); True otherwise.
+    zeta : (N,)
+        The cos psi threshold used for each spectrum.
+    airmass : (M,)
+        Computed on first access: :func:`airmass` of ``zenith_centric`` with the
+        model, H and the cell's radius given to :func:`footprint` [note 4].
+    """
+
+    spectrum: np.ndarray
+    cell: np.ndarray
+    d: np.ndarray
+    distance: np.ndarray
+    solid_angle: np.ndarray
+    zenith_centric: np.ndarray
+    zenith_detic: np.ndarray
+    emission: np.ndarray
+    nadir_angle: np.ndarray
+    position_angle: np.ndarray
+    gsh: np.ndarray
+    azimuth: np.ndarray
+    elevation: np.ndarray
+    visible: np.ndarray
+    zeta: np.ndarray
+    cells: CellTable = field(repr=False)
+    airmass_model: str = "chapman"
+    H: float | None = None
+    _airmass: np.ndarray | None = field(default=None, repr=False)
+
+    def __len__(self) -> int:
+        return len(self.spectrum)
+
+    @property
+    def airmass(self) -> np.ndarray:
+        if self._airmass is None:
+            if self.airmass_model is None:
+                self._airmass = np.full(len(self), np.nan)
+            else:
+                self._airmass = airmass(np.minimum(self.zenith_centric, 180.0), H=self.H,
+                                        R=self.cells.radius[self.cell], model=self.airmass_model)
+        return self._airmass
+
+    @property
+    def n_spectra(self) -> int:
+        return len(self.zeta)
+
+    def counts(self, visible_only: bool = True) -> np.ndarray:
+        """Number of footprint cells per spectrum (visible ones only by default)."""
+        sel = self.visible if visible_only else np.ones(len(self), bool)
+        return np.bincount(self.spectrum[sel], minlength=self.n_spectra)
+
+    def subset(self, mask) -> "FootprintResult":
+        """The pairs where ``mask`` is True (e.g. ``fp.subset(fp.visible)``)."""
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != (len(self),):
+            raise ValueError(f"mask: expected shape ({len(self)},), got {mask.shape}")
+        kw = {name: getattr(self, name)[mask] for name in _PAIR_FIELDS}
+        out = FootprintResult(**kw, zeta=self.zeta, cells=self.cells, airmass_model=self.airmass_model, H=self.H)
+        if self._airmass is not None:
+            out._airmass = self._airmass[mask]
+        return out
+
+    def to_table(self) -> dict:
+        """Flat columns for CSV (vectors split into _x/_y/_z; cell lat/lon added)."""
+        cols = {"spectrum": self.spectrum, "cell": self.cell,
+                "lat": self.cells.lat[self.cell], "lon": self.cells.lon[self.cell]}
+        for name in _PAIR_FIELDS[2:]:
+            value = getattr(self, name)
+            if value.ndim == 2:
+                for k, axis in enumerate("xyz"):
+                    cols[f"{name}_{axis}"] = value[:, k]
+            else:
+                cols[name] = value
+        cols["airmass"] = self.airmass
+        return cols
+
+    def to_xarray(self, layout: str = "pairs"):
+        """An ``xarray.Dataset``: ``layout="pairs"`` (dimension ``pair``, with the
+        spectrum and cell of each as coordinates) or ``"dense"`` (dimensions
+        ``spectrum`` x ``cell`` over the cells that occur in any footprint, NaN
+        where a cell is not in a spectrum's footprint)."""
+        import xarray as xr
+
+        attrs = dict(angles="degrees; position_angle clockwise from north through east [0, 360)",
+                     frame="planet-fixed, x to 0N 0E, z north; gsh: x up, y along track, z left",
+                     cell_deg=self.cells.cell_deg, airmass_model=str(self.airmass_model))
+        if layout == "pairs":
+            data = {}
+            for name in _PAIR_FIELDS[2:]:
+                value = getattr(self, name)
+                data[name] = (("pair", "xyz"), value) if value.ndim == 2 else ("pair", value)
+            data["airmass"] = ("pair", self.airmass)
+            data["zeta"] = ("spectrum", self.zeta)
+            coords = {"pair": np.arange(len(self)), "xyz": ["x", "y", "z"],
+                      "pair_spectrum": ("pair", self.spectrum), "pair_cell": ("pair", self.cell),
+                      "spectrum": np.arange(self.n_spectra),
+                      "lat": ("pair", self.cells.lat[self.cell]), "lon": ("pair", self.cells.lon[self.cell])}
+            return xr.Dataset(data, coords=coords, attrs=attrs)
+        if layout != "dense":
+            raise ValueError(f"layout must be 'pairs' or 'dense', got {layout!r}")
+        used, col = np.unique(self.cell, return_inverse=True)
+        ns = self.n_spectra
+        data = {}
+        for name in _PAIR_FIELDS[3:] + ("airmass",):
+            value = getattr(self, name)
+            if name == "visible":
+                grid = np.zeros((ns, len(used)), dtype=bool)
+            else:
+                grid = np.full((ns, len(used)) + value.shape[1:], np.nan)
+            grid[self.spectrum, col] = value
+            data[name] = (("spectrum", "cell", "xyz"), grid) if value.ndim == 2 else (("spectrum", "cell"), grid)
+        data["zeta"] = ("spectrum", self.zeta)
+        coords = {"spectrum": np.arange(ns), "cell": used, "xyz": ["x", "y", "z"],
+                  "lat": ("cell", self.cells.lat[used]), "lon": ("cell", self.cells.lon[used])}
+        return xr.Dataset(data, coords=coords, attrs=attrs)
+
+
+def _run_kernel(cells: CellTable, R: np.ndarray, frames: np.ndarray, zeta: np.ndarray, area: float, threads: int):
+    from . import _core
+
+    cd = math.radians(cells.cell_deg)
+    u = cells.u
+    rmin, rtop = cells.radius_range
+    counts, status, stat = _core.core_footprint_count(R.T, zeta, cells.nrow, cells.ncol, cd, u.T, cells.radius,
+                                                      rmin, rtop, threads=threads)
+    _raise_status(stat, status, R, cells)
+    offsets = np.zeros(len(R), dtype=np.int64)
+    if len(R) > 1:
+        np.cumsum(counts[:-1], out=offsets[1:])
+    m = int(counts.sum())
+    fr = np.ascontiguousarray(frames)
+    idx, d, gsh, scal, status, stat = _core.core_footprint_fill(
+        R.T, fr.transpose(2, 1, 0), zeta, cells.nrow, cells.ncol, cd, u.T, cells.radius, rmin, rtop,
+        cells.normal_detic.T, cells.normal.T, area, offsets, max(m, 0), threads=threads)
+    _raise_status(stat, status, R, cells)
+    return idx, d, gsh, scal
+
+
+def _raise_status(stat, status, R, cells):
+    if stat != 0:
+        raise RuntimeError(f"footprint kernel: {FOOTPRINT_STATUS.get(int(stat), stat)} (status {stat})")
+    bad = np.flatnonzero(status)
+    if bad.size:
+        k = int(bad[0])
+        if status[k] == 2:
+            raise ValueError(f"R[{k}] = {R[k]} (|R| = {np.linalg.norm(R[k]):.6g}) is not above the highest cell "
+                             f"centre ({cells.radius.max():.6g}): the spacecraft must be above the surface")
+        raise ValueError(f"R[{k}] = {R[k]}: {FOOTPRINT_STATUS.get(int(status[k]), status[k])}")
+
+
+def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta: float | None = None,
+              flux_fraction: float | None = None, occlusion: bool = False, airmass_model: str | None = "chapman",
+              H: float | None = None, threads: int | None = None, occlusion_tol: float | None = None,
+              progress=None) -> FootprintResult:
+    """Footprint geometry of N spectra over a cell table (DESIGN section 10).
+
+    Parameters
+    ----------
+    cells : CellTable
+        The cells (and through ``cells.dem`` the terrain for occlusion).
+    R, v : array (3,) or (N, 3)
+        Spacecraft position and velocity, planet-fixed frame (DEM units, and
+        any unit per second for v: only its direction is used). v builds the
+        spacecraft frame (gsh, azimuth, elevation); with v=None those are NaN.
+    area : float
+        The detector's projected area A in DEM units squared (default the
+        notes' 34 cm^2 = 3.4e-9 km^2): solid angle = A/|d|^2.
+    zeta : float, optional
+        Footprint cone: cells with cos psi >= zeta (psi the nadir angle),
+        within [-1, 1]. Default (and zeta <= 0): every cell above its horizon.
+    flux_fraction : float, optional
+        Instead of zeta: per spectrum, the zeta whose cone holds this fraction
+        (0 < q <= 1) of the total flux of the visible cells, each weighted by
+        ``area_cell * max(cos emission, 0) * solid_angle`` (an isotropically
+        radiating surface seen by the detector) [note 6]. ``fp.zeta`` gives the
+        value used; the cells taken are those with nadir angle up to the first
+        at which the running sum, in order of nadir angle, reaches the fraction.
+    occlusion : bool
+        Also test each pair's line of sight against the terrain, by casting the
+        ray from the spacecraft to the DEM surface at the cell centre with
+        ``intersect(dem, R, l, method="exact")``: the pair is hidden
+        (``visible`` False) when the ray enters the surface more than
+        ``occlusion_tol`` (default 1e-6 rmax) before reaching that point.
+    airmass_model : "chapman", "hardie", "notes", "secant" or None
+        Model of ``fp.airmass`` (computed on first access) with the zenith angle
+        ``zenith_centric``, the scale height H (default :func:`scale_height`)
+        and the cell's radius.
+    threads : int, optional
+        OpenMP threads over the spectra (None or 0: all cores); results are
+        bit-identical for any count.
+    progress : callable, optional
+        ``progress(done, total)`` during the occlusion rays.
+
+    Returns
+    -------
+    FootprintResult
+
+    Raises
+    ------
+    ValueError
+        Bad shapes, NaN/Inf, zeta outside [-1, 1] or together with
+        flux_fraction, a radial velocity, a spacecraft not above the surface.
+    """
+    if not isinstance(cells, CellTable):
+        raise TypeError(f"cells must be a planet_intersect.CellTable, got {type(cells).__name__}")
+    R = _vectors(R, "R")
+    _nonzero(R, "R")
+    area = _real(area, "area", lo=0.0, lo_open=True)
+    if zeta is not None and flux_fraction is not None:
+        raise ValueError("give zeta or flux_fraction, not both")
+    if airmass_model is not None and airmass_model not in _AIRMASS_MODELS:
+        raise ValueError(f"airmass_model must be one of {', '.join(_AIRMASS_MODELS)} or None, got {airmass_model!r}")
+    if H is not None:
+        H = _real(H, "H", lo=0.0, lo_open=True)
+    if threads is None:
+        threads = 0
+    if (isinstance(threads, (bool, np.bool_)) or not isinstance(threads, (int, np.integer)) or threads < 0
+            or threads > 1024):
+        raise ValueError(f"threads must be an integer from 0 to 1024 (0 or None: all cores), got {threads!r}")
+    if v is None:
+        frames = np.full((len(R), 3, 3), np.nan)
+    else:
+        vv = _vectors(v, "v")
+        if len(vv) != len(R) and len(vv) != 1:
+            raise ValueError(f"v: {len(vv)} velocities for {len(R)} positions")
+        frames = np.broadcast_to(spacecraft_frame(R, np.broadcast_to(vv, R.shape), method="state").reshape(-1, 3, 3),
+                                 (len(R), 3, 3))
+    if flux_fraction is not None:
+        q = _real(flux_fraction, "flux_fraction", lo=0.0, lo_open=True, hi=1.0)
+        zeta_arr = np.zeros(len(R))
+    else:
+        z = 0.0 if zeta is None else _real(zeta, "zeta", lo=-1.0, hi=1.0)
+        zeta_arr = np.full(len(R), z)
+    idx, d, gsh, scal = _run_kernel(cells, R, frames, zeta_arr, area, int(threads))
+    scal[:, 2:] *= 180.0 / math.pi            # columns of a Fortran-ordered array: one block, in place, no copies
+    res = FootprintResult(
+        spectrum=idx[:, 0], cell=idx[:, 1], d=d.T, distance=scal[:, 0], solid_angle=scal[:, 1],
+        zenith_centric=scal[:, 2], zenith_detic=scal[:, 3], emission=scal[:, 4],
+        nadir_angle=scal[:, 5], position_angle=scal[:, 6], gsh=gsh.T, azimuth=scal[:, 7],
+        elevation=scal[:, 8], visible=np.ones(len(idx), dtype=bool), zeta=zeta_arr,
+        cells=cells, airmass_model=airmass_model, H=H)
+    if flux_fraction is not None:
+        res = _flux_cone(res, q)
+    if occlusion:
+        res.visible = occluded_not(cells, R, res, tol=occlusion_tol, threads=int(threads), progress=progress)
+    return res
+
+
+def flux_weights(fp: FootprintResult) -> np.ndarray:
+    """Flux weight of each pair: ``area_cell * max(cos emission, 0) * solid_angle`` [note 6]."""
+    return fp.cells.area[fp.cell] * np.maximum(np.cos(np.radians(fp.emission)), 0.0) * fp.solid_angle
+
+
+def _flux_cone(res: FootprintResult, q: float) -> FootprintResult:
+    """Keep, per spectrum, the cells up to the nadir angle where the flux reaches q of the total."""
+    n = len(res)
+    ns = res.n_spectra
+    if n == 0:
+        return res
+    w = flux_weights(res)
+    order = np.lexsort((res.nadir_angle, res.spectrum))
+    spec = res.spectrum[order]
+    ws = w[order]
+    psi = res.nadir_angle[order]
+    starts = np.searchsorted(spec, np.arange(ns))
+    counts = np.bincount(spec, minlength=ns)
+    cum = np.cumsum(ws)
+    base = np.where(starts > 0, cum[np.maximum(starts - 1, 0)], 0.0)
+    rel = cum - base[spec]
+    total = rel[np.maximum(starts + counts - 1, 0)]
+    reach = rel >= q * total[spec] * (1.0 - 1e-14)
+    before = np.bincount(spec[~reach], minlength=ns)          # cells before the fraction is reached
+    last = starts + np.minimum(before, np.maximum(counts - 1, 0))
+    psi_q = np.where(counts > 0, psi[np.minimum(last, n - 1)], 0.0)
+    keep = res.nadir_angle <= psi_q[res.spectrum]
+    out = res.subset(keep)
+    out.zeta = np.where(counts > 0, np.cos(np.radians(psi_q)), 1.0)
+    return out
+
+
+def occluded_not(cells: CellTable, R: np.ndarray, fp: FootprintResult, tol: float | None = None,
+                 threads: int = 0, chunk: int = 200_000, progress=None) -> np.ndarray:
+    """True for each pair whose line from the spacecraft to the cell is not blocked by terrain [note 14].
+
+    The ray runs from R[spectrum] to the DEM surface at the cell centre
+    (``cells.radius_dem`` along u); it is cast with the package's exact first
+    hit (``intersect(..., method="exact")``); the pair is hidden when the hit
+    lies more than ``tol`` (default 1e-6 rmax) short of that point.
+    """
+    from .intersect import intersect
+
+    dem = cells.dem
+    tol = 1e-6 * dem.rmax if tol is None else _real(tol, "occlusion_tol", lo=0.0)
+    n = len(fp)
+    out = np.ones(n, dtype=bool)
+    if n == 0:
+        return out
+    R = np.asarray(R, dtype=np.float64)
+    for a in range(0, n, chunk):
+        sl = slice(a, min(n, a + chunk))
+        s = R[fp.spectrum[sl]]
+        target = cells.u[fp.cell[sl]] * cells.radius_dem[fp.cell[sl]][:, None]
+        l = target - s
+        length = np.linalg.norm(l, axis=1)
+        res = intersect(dem, s, l, method="exact", threads=threads)
+        hit_dist = np.linalg.norm(res.p - s, axis=1)
+        out[sl] = ~(res.hit & (hit_dist < length - tol))
+        if progress:
+            progress(sl.stop, n)
+    return out
+
+
+# ----------------------------------------------------------------------------------------
+# the eccentric orbit (notes' last section)
+# ----------------------------------------------------------------------------------------
+def visible_cap_area(altitude, radius: float) -> np.ndarray:
+    """Area of the cap of a sphere of ``radius`` visible from ``altitude`` above it:
+    ``2 pi r^2 h/(r + h)`` (the horizon is at cos theta = r/(r + h))."""
+    h = np.asarray(altitude, dtype=np.float64)
+    return 2.0 * np.pi * radius ** 2 * h / (radius + h)
+
+
+def keplerian_states(t, periapsis_radius: float, apoapsis_radius: float, inclination_deg: float = 93.1,
+                     node_deg: float = 0.0, argp_deg: float = 0.0, mean_anomaly0_deg: float = 0.0,
+                     GM: float = MARS_GM, rotation_rate: float = MARS_ROTATION_RATE):
+    """Planet-fixed state vectors (km, km/s) of a Keplerian orbit at times t (s).
+
+    The orbit is fixed in an inertial frame that coincides with the
+    planet-fixed frame at t = 0; the planet turns at ``rotation_rate`` (rad/s)
+    about +z, so ``R_fixed = Rz(-w t) R_inertial`` and
+    ``v_fixed = Rz(-w t) (v_inertial - w z x R_inertial)``. Kepler's equation
+    is solved by Newton's method (at most 30 steps).
+    """
+    t = np.atleast_1d(np.asarray(t, dtype=np.float64))
+    rp, ra = float(periapsis_radius), float(apoapsis_radius)
+    if not (0 < rp <= ra):
+        raise ValueError(f"periapsis_radius and apoapsis_radius: need 0 < rp <= ra, got {rp}, {ra}")
+    a = 0.5 * (rp + ra)
+    e = (ra - rp) / (ra + rp)
+    n = math.sqrt(GM / a ** 3)
+    M = math.radians(mean_anomaly0_deg) + n * t
+    E = M.copy()
+    for _ in range(30):
+        dE = (E - e * np.sin(E) - M) / (1.0 - e * np.cos(E))
+        E -= dE
+        if np.all(np.abs(dE) < 1e-15):
+            break
+    cosE, sinE = np.cos(E), np.sin(E)
+    b = a * math.sqrt(1 - e * e)
+    xp, yp = a * (cosE - e), b * sinE
+    edot = n / (1 - e * cosE)
+    vxp, vyp = -a * sinE * edot, b * cosE * edot
+    i, O, w = (math.radians(v) for v in (inclination_deg, node_deg, argp_deg))
+    P = np.array([math.cos(O) * math.cos(w) - math.sin(O) * math.sin(w) * math.cos(i),
+                  math.sin(O) * math.cos(w) + math.cos(O) * math.sin(w) * math.cos(i),
+                  math.sin(w) * math.sin(i)])
+    Q = np.array([-math.cos(O) * math.sin(w) - math.sin(O) * math.cos(w) * math.cos(i),
+                  -math.sin(O) * math.sin(w) + math.cos(O) * math.cos(w) * math.cos(i),
+                  math.cos(w) * math.sin(i)])
+    Ri = xp[:, None] * P + yp[:, None] * Q
+    vi = vxp[:, None] * P + vyp[:, None] * Q
+    vi = vi - rotation_rate * np.stack([-Ri[:, 1], Ri[:, 0], np.zeros(len(t))], axis=1)
+    th = -rotation_rate * t
+    c, s = np.cos(th), np.sin(th)
+
+    def rot(x):
+        return np.stack([c * x[:, 0] - s * x[:, 1], s * x[:, 0] + c * x[:, 1], x[:, 2]], axis=1)
+
+    return rot(Ri), rot(vi)
+
+
+@dataclass
+class OrbitStudy:
+    """Results of :func:`orbit_study` (lengths km, angles deg, times s)."""
+
+    t: np.ndarray
+    altitude: np.ndarray
+    visible_area: np.ndarray
+    area_variation: float
+    notes_variation: float
+    counts: dict
+    nadir_offsets_deg: np.ndarray
+    nadir: np.ndarray
+    periapsis_index: int
+    apoapsis_index: int
+    radius: float
+    periapsis_alt: float
+    apoapsis_alt: float
+
+
+def orbit_study(cells: CellTable | None = None, periapsis_alt: float = 387.0, apoapsis_alt: float = 450.0,
+                radius: float = 3397.0, inclination_deg: float = 93.1, n: int = 721,
+                zetas=(0.0, 0.5), offsets_deg=(2.0, 5.0, 10.0, 15.0, 20.0)) -> OrbitStudy:
+    """One orbit of an eccentric mapping orbit: visible area, cell counts, nadir angles.
+
+    ``radius`` is the notes' r_Mars (3397 km): altitudes are above it. The
+    visible area is the sphere's cap :func:`visible_cap_area`; its variation
+    ``max/min - 1`` is compared with the notes' "16 %" (``notes_variation``:
+    the same from their own altitudes 385.6 and 454.4 km). With ``cells``,
+    ``counts[zeta]`` is the number of footprint cells (above the horizon and
+    cos psi >= zeta) at each time. ``nadir[:, k]`` is the nadir angle of a cell
+    at the central angle ``offsets_deg[k]`` from the sub-spacecraft point on a
+    sphere of ``radius`` (a cell at a fixed ground offset, e.g. across track):
+    ``psi = atan2(r sin theta, |R| - r cos theta)``.
+    """
+    rp, ra = radius + periapsis_alt, radius + apoapsis_alt
+    a = 0.5 * (rp + ra)
+    period = 2 * math.pi * math.sqrt(a ** 3 / MARS_GM)
+    t = np.linspace(0.0, period, n)
+    R, v = keplerian_states(t, rp, ra, inclination_deg)
+    rn = np.linalg.norm(R, axis=1)
+    alt = rn - radius
+    area = visible_cap_area(alt, radius)
+    variation = float(area.max() / area.min() - 1)
+    notes = float(visible_cap_area(454.4, 3397.0) / visible_cap_area(385.6, 3397.0) - 1)
+    counts = {}
+    if cells is not None:
+        from . import _core
+
+        for z in zetas:
+            c, status, stat = _core.core_footprint_count(R.T, np.full(n, float(z)), cells.nrow, cells.ncol,
+                                                         math.radians(cells.cell_deg), cells.u.T, cells.radius,
+                                                         *cells.radius_range)
+            _raise_status(stat, status, R, cells)
+            counts[float(z)] = c
+    th = np.radians(np.asarray(offsets_deg, dtype=np.float64))
+    nadir = np.degrees(np.arctan2(radius * np.sin(th)[None, :], rn[:, None] - radius * np.cos(th)[None, :]))
+    return OrbitStudy(t=t, altitude=alt, visible_area=area, area_variation=variation, notes_variation=notes,
+                      counts=counts, nadir_offsets_deg=np.asarray(offsets_deg, float), nadir=nadir,
+                      periapsis_index=int(np.argmin(rn)), apoapsis_index=int(np.argmax(rn)), radius=radius,
+                      periapsis_alt=periapsis_alt, apoapsis_alt=apoapsis_alt)
+
+
+def plot_orbit_study(study: OrbitStudy, path) -> None:
+    """Three panels over one orbit: altitude and visible area; footprint cell counts; nadir angles."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tm = study.t / 60.0
+    fig, axes = plt.subplots(3, 1, figsize=(8, 9), sharex=True)
+    ax = axes[0]
+    ax.plot(tm, study.altitude, "k-")
+    ax.set_ylabel("altitude (km)")
+    ax2 = ax.twinx()
+    ax2.plot(tm, study.visible_area / 1e6, "C0--")
+    ax2.set_ylabel("visible area (10^6 km^2)", color="C0")
+    ax.set_title(f"Mapping orbit {study.periapsis_alt:.0f} x {study.apoapsis_alt:.0f} km: visible area varies "
+                 f"{100 * study.area_variation:.1f} % (notes' 385.6/454.4 km: {100 * study.notes_variation:.1f} %)",
+                 fontsize=9)
+    ax = axes[1]
+    for z, c in study.counts.items():
+        lab = "above the horizon" if z <= 0 else f"cos psi >= {z:g} (psi <= {math.degrees(math.acos(z)):.0f} deg)"
+        ax.plot(tm, c, label=lab)
+    ax.set_ylabel("cells in the footprint")
+    if study.counts:
+        ax.legend(fontsize=8)
+    ax = axes[2]
+    for k, off in enumerate(study.nadir_offsets_deg):
+        ax.plot(tm, study.nadir[:, k], label=f"cell {off:g} deg from nadir point")
+    ax.set_ylabel("nadir angle psi (deg)")
+    ax.set_xlabel("time since periapsis (min)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _shade(dem: DEM, lat_rng, lon_rng):
+    """Hillshade of the DEM's height above its spheroid over a lat/lon box (deg)."""
+    from .geometry import spheroid_radius
+
+    ppd = dem.ppd
+    i0 = max(0, int((lat_rng[0] + 90) * ppd))
+    i1 = min(dem.nlat, int(math.ceil((lat_rng[1] + 90) * ppd)))
+    j0 = int(math.floor(lon_rng[0] * ppd))
+    j1 = int(math.ceil(lon_rng[1] * ppd))
+    cols = np.arange(j0, j1) % dem.nlon
+    block = np.asarray(dem.radii[i0:i1], dtype=np.float64)[:, cols]
+    h = block - spheroid_radius(dem.lat[i0:i1], dem.f, dem.re)[:, None] if dem.f > 0 else block - block.mean()
+    gy, gx = np.gradient(h)
+    az, alt = math.radians(315), math.radians(45)
+    slope = np.arctan(np.hypot(gx, gy) * ppd * 180 / math.pi / dem.re * 3)
+    aspect = np.arctan2(-gx, gy)
+    shade = np.sin(alt) * np.cos(slope) + np.cos(alt) * np.sin(slope) * np.cos(az - aspect)
+    extent = (j0 / ppd, j1 / ppd, i0 / ppd - 90, i1 / ppd - 90)
+    return shade, extent
+
+
+def plot_footprint_map(fp: FootprintResult, path, color: str = "solid_angle", spectrum: int | None = None,
+                       title: str | None = None) -> None:
+    """Map of footprint cells coloured by solid angle or emission over the DEM's shading.
+
+    ``spectrum``: one spectrum's footprint (default: all, showing each cell's
+    largest solid angle or smallest emission). Hidden cells (occlusion) are
+    hatched grey.
+    """
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if color not in ("solid_angle", "emission"):
+        raise ValueError(f"color must be 'solid_angle' or 'emission', got {color!r}")
+    cells = fp.cells
+    sel = np.ones(len(fp), bool) if spectrum is None else fp.spectrum == spectrum
+    if not sel.any():
+        raise ValueError("no footprint cells to plot")
+    val = getattr(fp, color)[sel]
+    cid = fp.cell[sel]
+    vis = fp.visible[sel]
+    grid = np.full(len(cells), np.nan)
+    order = np.argsort(val if color == "solid_angle" else -val)
+    grid[cid[order]] = val[order]
+    hidden = np.zeros(len(cells), bool)
+    hidden[cid[~vis]] = True
+    grid = grid.reshape(cells.nrow, cells.ncol)
+    lat, lon = cells.lat[cid], cells.lon[cid]
+    # longitudes unwrapped around the footprint's circular mean
+    lon0 = math.degrees(math.atan2(np.mean(np.sin(np.radians(lon))), np.mean(np.cos(np.radians(lon)))))
+    rel = (lon - lon0 + 180) % 360 - 180
+    pad = 2.0
+    lon_rng = (lon0 + rel.min() - pad, lon0 + rel.max() + pad)
+    lat_rng = (max(-90.0, lat.min() - pad), min(90.0, lat.max() + pad))
+    fig, ax = plt.subplots(figsize=(9, 7))
+    shade, extent = _shade(cells.dem, lat_rng, lon_rng)
+    ax.imshow(shade, origin="lower", extent=extent, cmap="gray", aspect="auto")
+    cd = cells.cell_deg
+    jj = np.arange(int(math.floor(lon_rng[0] / cd)), int(math.ceil(lon_rng[1] / cd)))
+    i0, i1 = int((lat_rng[0] + 90) / cd), min(cells.nrow, int(math.ceil((lat_rng[1] + 90) / cd)))
+    sub = grid[i0:i1][:, jj % cells.ncol]
+    shown = sub * 1e14 if color == "solid_angle" else sub
+    im = ax.imshow(shown, origin="lower", extent=(jj[0] * cd, (jj[-1] + 1) * cd, i0 * cd - 90, i1 * cd - 90),
+                   cmap="viridis" if color == "solid_angle" else "magma_r", alpha=0.6, aspect="auto")
+    hid = hidden.reshape(cells.nrow, cells.ncol)[i0:i1][:, jj % cells.ncol]
+    if hid.any():
+        ax.imshow(np.where(hid, 1.0, np.nan), origin="lower", extent=(jj[0] * cd, (jj[-1] + 1) * cd, i0 * cd - 90,
+                                                                     i1 * cd - 90), cmap="Reds", vmin=0, vmax=1.2,
+                  aspect="auto")
+    fig.colorbar(im, ax=ax, label="solid angle (1e-14 sr)" if color == "solid_angle" else "emission angle (deg)")
+    ax.set_xlabel("east longitude (deg)")
+    ax.set_ylabel("areocentric latitude (deg)")
+    ax.set_title(title or f"footprint cells ({int(sel.sum())} pairs, {int((~vis).sum())} hidden by terrain in red)",
+                 fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,473 @@
+"""Footprint geometry (issue 13, Mars Odyssey GRS notes): cell table, per-pair
+geometry, selection, position angle, frames, air mass, flux cone, orbit study.
+
+Expectations are closed forms on a sphere and a spheroid, exhaustive selection
+over every cell, and formulas written here independently of the module.
+"""
+
+import math
+import sys
+
+import numpy as np
+import pytest
+
+import planet_intersect as pi
+import planet_intersect.footprint  # noqa: F401  (the module; pi.footprint is the function)
+from planet_intersect.synthetic import MARS_F, MARS_RE
+
+F = sys.modules["planet_intersect.footprint"]
+
+R_SPHERE = 3390.0
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    dem = pi.DEM.from_array(np.full((720, 1440), R_SPHERE))
+    return pi.CellTable(dem, 0.5)
+
+
+@pytest.fixture(scope="module")
+def spheroid():
+    lat = -90 + (np.arange(720) + 0.5) / 4
+    r = pi.spheroid_radius(lat, MARS_F, MARS_RE)
+    dem = pi.DEM.from_array(np.repeat(r[:, None], 1440, axis=1), f=MARS_F, re=MARS_RE)
+    return pi.CellTable(dem, 0.5)
+
+
+def _xyz(lat, lon, r):
+    la, lo = np.radians(lat), np.radians(lon)
+    return np.stack([r * np.cos(la) * np.cos(lo), r * np.cos(la) * np.sin(lo), r * np.sin(la)], axis=-1)
+
+
+def _random_states(rng, n, rmin=3700.0, rmax=4400.0):
+    R = rng.standard_normal((n, 3))
+    R *= (rng.uniform(rmin, rmax, n) / np.linalg.norm(R, axis=1))[:, None]
+    v = rng.standard_normal((n, 3))
+    return R, v
+
+
+# ---------------------------------------------------------------------------------------------
+# cell table
+# ---------------------------------------------------------------------------------------------
+def test_cell_table_on_a_sphere(sphere):
+    c = sphere
+    assert len(c) == 360 * 720 and c.nrow == 360 and c.ncol == 720
+    assert np.allclose(c.radius, R_SPHERE, rtol=0, atol=1e-9)
+    # the topographic normal of a sphere is the radial direction; detic = centric
+    assert np.max(np.linalg.norm(c.normal - c.u, axis=1)) < 1e-12
+    assert np.max(np.abs(c.lat_detic - c.lat)) < 1e-9
+    # cell areas sum to the sphere's area
+    assert math.isclose(c.area.sum(), 4 * math.pi * R_SPHERE ** 2, rel_tol=1e-12)
+    # registration: cell 0 at (-89.75, 0.25), row-major from the south-west
+    assert (c.lat[0], c.lon[0], c.lat[720], c.lon[719]) == (-89.75, 0.25, -89.25, 359.75)
+    assert c.index(10.1, 359.9) == (int((10.1 + 90) / 0.5)) * 720 + 719
+    # cached with the DEM: a second table shares the arrays
+    assert pi.CellTable(c.dem, 0.5).normal is c.normal
+
+
+def test_cell_table_on_the_spheroid(spheroid):
+    c = spheroid
+    e2 = MARS_F * (2 - MARS_F)
+    # spheroid normal at the cell's centric latitude, written here from the implicit surface
+    p = c.r
+    grad = p / np.array([MARS_RE ** 2, MARS_RE ** 2, (MARS_RE * (1 - MARS_F)) ** 2])
+    grad /= np.linalg.norm(grad, axis=1, keepdims=True)
+    ang = np.arctan2(np.linalg.norm(np.cross(c.normal, grad), axis=1), np.sum(c.normal * grad, axis=1))
+    assert ang.max() < 5e-8                      # rad; measured 1.9e-8 at 4 ppd
+    # lat_detic: full conversion of the (nearly on-spheroid) centre point
+    exact = np.degrees(np.arctan2(np.tan(np.radians(c.lat)), 1 - e2)) % 180
+    exact = np.where(exact > 90, exact - 180, exact)
+    assert np.max(np.abs(c.lat_detic_spheroid - exact)) < 1e-10
+    assert np.max(np.abs(c.lat_detic - c.lat_detic_spheroid)) < 1e-6
+    # areodetic minus areocentric latitude peaks at 45 deg with m = e^2/(2 - e^2) rad to first order
+    m = e2 / (2 - e2)
+    k45 = c.index(44.75, 10.25)
+    assert math.isclose(math.radians(c.lat_detic_spheroid[k45] - c.lat[k45]), m * math.sin(math.radians(89.5)),
+                        rel_tol=5e-3)
+
+
+def test_geodetic_conversion_of_points_off_the_spheroid():
+    rng = np.random.default_rng(5)
+    latd = rng.uniform(-89.9, 89.9, 500)
+    lon = rng.uniform(0, 360, 500)
+    h = rng.uniform(-10, 500, 500)
+    e2 = MARS_F * (2 - MARS_F)
+    b, l = np.radians(latd), np.radians(lon)
+    N = MARS_RE / np.sqrt(1 - e2 * np.sin(b) ** 2)
+    p = np.stack([(N + h) * np.cos(b) * np.cos(l), (N + h) * np.cos(b) * np.sin(l), (N * (1 - e2) + h) * np.sin(b)], 1)
+    lat2, h2 = F.geodetic_latitude(p, MARS_RE, MARS_F)
+    assert np.max(np.abs(lat2 - latd)) < 1e-11
+    assert np.max(np.abs(h2 - h)) < 1e-8
+
+
+def test_latitude_series_printed_has_the_wrong_sign():
+    f = MARS_F
+    lat = np.linspace(-85, 85, 35)
+    exact = F.detic_latitude(lat, f)
+    printed = F.notes_latitude_series(lat, f)
+    corrected = F.notes_latitude_series(lat, f, corrected=True)
+    e2 = f * (2 - f)
+    m = e2 / (2 - e2)
+    # the true areodetic latitude is poleward of the areocentric one; the printed series is equatorward
+    north = lat > 0
+    assert np.all(exact[north] > lat[north]) and np.all(printed[north] < lat[north])
+    # at 45 deg the printed series is off by about 2m (0.67 deg on Mars)
+    k = np.argmin(np.abs(lat - 45))
+    assert math.isclose(exact[k] - printed[k], math.degrees(2 * m), rel_tol=0.01)
+    # the exact series is b' - b = sum m^k sin(2kb)/k: the corrected one stops at k = 2, so its
+    # error is the third term, m^3/3 at most (4e-6 deg on Mars)
+    err = np.max(np.abs(corrected - exact))
+    assert 0.9 * math.degrees(m ** 3 / 3) < err < 1.01 * math.degrees(m ** 3 / 3)
+
+
+# ---------------------------------------------------------------------------------------------
+# per-pair geometry on a sphere: closed forms
+# ---------------------------------------------------------------------------------------------
+def test_solid_angle_of_the_notes_at_400_km(sphere):
+    R = _xyz(0.25, 0.25, R_SPHERE + 400.0)
+    fp = pi.footprint(sphere, R, [0, 0, 3.4], zeta=0.999)
+    k = np.argmin(fp.distance)
+    assert math.isclose(fp.distance[k], 400.0, rel_tol=1e-12)
+    assert math.isclose(fp.solid_angle[k], 3.4e-9 / 400 ** 2, rel_tol=1e-12)
+    assert abs(fp.solid_angle[k] * 1e14 - 2.13) < 0.0051         # the notes: "~ 2.13e-14 sr" (2.125 exactly)
+    assert fp.nadir_angle[k] < 1e-9 and fp.zenith_centric[k] < 1e-9
+
+
+def test_sphere_closed_forms(sphere):
+    rng = np.random.default_rng(2)
+    R, v = _random_states(rng, 12)
+    fp = pi.footprint(sphere, R, v, zeta=0.0)
+    c = sphere
+    rn = np.linalg.norm(R, axis=1)[fp.spectrum]
+    u = c.u[fp.cell]
+    theta = np.arccos(np.clip(np.sum(u * R[fp.spectrum], axis=1) / rn, -1, 1))
+    dist = np.sqrt(rn ** 2 + R_SPHERE ** 2 - 2 * rn * R_SPHERE * np.cos(theta))
+    psi = np.degrees(np.arctan2(R_SPHERE * np.sin(theta), rn - R_SPHERE * np.cos(theta)))
+    assert np.max(np.abs(fp.distance - dist) / dist) < 1e-12
+    assert np.max(np.abs(fp.nadir_angle - psi)) < 1e-6
+    # zenith angle at the cell = central angle + nadir angle (triangle centre, cell, spacecraft)
+    assert np.max(np.abs(fp.zenith_centric - (np.degrees(theta) + psi))) < 1e-6
+    # on a sphere all three normals agree
+    assert np.max(np.abs(fp.zenith_detic - fp.zenith_centric)) < 1e-9
+    assert np.max(np.abs(fp.emission - fp.zenith_centric)) < 1e-9
+    # every visible cell is above the horizon, and the cap is complete: theta < acos(r/|R|)
+    assert fp.zenith_centric.max() < 90
+    horizon = np.degrees(np.arccos(R_SPHERE / rn))
+    assert np.all(np.degrees(theta) < horizon)
+    # elevation in the spacecraft frame is psi - 90
+    assert np.max(np.abs(fp.elevation - (fp.nadir_angle - 90))) < 1e-9
+
+
+def test_selection_equals_exhaustive_search(spheroid):
+    """The prefilter never drops a cell: same pairs as testing every cell."""
+    c = spheroid
+    rng = np.random.default_rng(7)
+    R, v = _random_states(rng, 10, 3500, 5000)
+    # add states over the poles and across 0/360 E
+    R = np.vstack([R, _xyz(89.9, 17.0, 3800.0), _xyz(-89.99, 200.0, 3800.0), _xyz(0.1, 359.9, 3700.0),
+                   [0, 0, 3790.0]])
+    v = np.vstack([v, [[1, 0, 0]] * 4])
+    for zeta in (0.0, 0.5, 0.9, 0.999):
+        fp = pi.footprint(c, R, v, zeta=zeta)
+        for s in range(len(R)):
+            d = R[s] - c.r
+            dist = np.linalg.norm(d, axis=1)
+            sel = (np.sum(d * c.u, axis=1) > 0) & (d @ (R[s] / np.linalg.norm(R[s])) >= zeta * dist)
+            assert np.array_equal(np.sort(fp.cell[fp.spectrum == s]), np.flatnonzero(sel)), (zeta, s)
+    # on the spheroid, the emission angle (normal from the DEM) equals the areodetic zenith angle
+    assert np.max(np.abs(fp.emission - fp.zenith_detic)) < 1e-5
+
+
+def test_threads_give_identical_results(spheroid):
+    rng = np.random.default_rng(3)
+    R, v = _random_states(rng, 16)
+    a = pi.footprint(spheroid, R, v, threads=1)
+    b = pi.footprint(spheroid, R, v, threads=2)
+    for name in ("spectrum", "cell", "d", "emission", "position_angle", "azimuth"):
+        assert np.array_equal(getattr(a, name), getattr(b, name), equal_nan=True)
+
+
+# ---------------------------------------------------------------------------------------------
+# position angle
+# ---------------------------------------------------------------------------------------------
+def _bearing(lat1, lon1, lat2, lon2):
+    """Initial great-circle bearing from point 1 to point 2, clockwise from north (deg)."""
+    p1, p2 = np.radians(lat1), np.radians(lat2)
+    dl = np.radians(lon2 - lon1)
+    y = np.sin(dl) * np.cos(p2)
+    x = np.cos(p1) * np.sin(p2) - np.sin(p1) * np.cos(p2) * np.cos(dl)
+    return np.degrees(np.arctan2(y, x)) % 360
+
+
+def test_position_angle_is_the_great_circle_bearing(sphere):
+    rng = np.random.default_rng(4)
+    R, v = _random_states(rng, 8)
+    fp = pi.footprint(sphere, R, v)
+    lat_s = np.degrees(np.arctan2(R[:, 2], np.hypot(R[:, 0], R[:, 1])))
+    lon_s = np.degrees(np.arctan2(R[:, 1], R[:, 0]))
+    b = _bearing(lat_s[fp.spectrum], lon_s[fp.spectrum], sphere.lat[fp.cell], sphere.lon[fp.cell])
+    diff = (fp.position_angle - b + 180) % 360 - 180
+    assert np.nanmax(np.abs(diff)) < 1e-8
+    assert np.all((fp.position_angle >= 0) & (fp.position_angle < 360))
+    # cardinal directions from a spacecraft over (20 N, 100 E)
+    S = _xyz(20, 100, 3790)
+    cells = _xyz(np.array([25.0, 20.0, 15.0, 20.0]), np.array([100.0, 105.0, 100.0, 95.0]), 3390)
+    pa = F.position_angle(S, cells)
+    assert np.allclose(pa[[0, 2]], [0, 180], atol=1e-9)
+    assert 89 < pa[1] < 91 and 269 < pa[3] < 271       # due east/west along the parallel (not a great circle)
+
+
+def test_notes_position_angle_recipe_fails_literally():
+    """The notes' recipe with its non-unit cross products returns ~90 deg for everything;
+    normalised it gives min(PA, 360 - PA) and cannot tell east from west."""
+    S = _xyz(40.0, 30.0, 3790.0)
+    lat = np.array([45.0, 40.0, 35.0, 40.0, 44.0, 36.0])
+    lon = np.array([30.0, 36.0, 30.0, 24.0, 35.0, 25.0])
+    cells = _xyz(lat, lon, 3390.0)
+    right = F.position_angle(S, cells)
+    literal = F.position_angle_notes(S, cells)
+    normalised = F.position_angle_notes(S, cells, normalize=True)
+    assert np.allclose(right, _bearing(40.0, 30.0, lat, lon), atol=1e-9)
+    # literal: |R x Q1| = cos 40 deg, |Q2 x R| = sin(<= 6 deg): cos PA tiny, PA within 86-94 deg
+    assert np.all((literal > 85.5) & (literal < 94.5))
+    assert np.max(np.abs(literal - right)) > 80
+    # normalised: the angle's cosine is right but the half-plane is lost
+    assert np.allclose(normalised, np.minimum(right, 360 - right), atol=1e-5)    # arccos: 1e-6 deg near 0 and 180
+    west = right > 180
+    assert west.sum() == 2 and np.all(np.abs(normalised[west] - right[west]) > 90)
+
+
+# ---------------------------------------------------------------------------------------------
+# spacecraft frame
+# ---------------------------------------------------------------------------------------------
+def test_frames_agree_and_are_what_they_say():
+    rng = np.random.default_rng(8)
+    R, v = _random_states(rng, 200)
+    R[0] = [0, 0, 3800.0]                      # over the north pole
+    v[0] = [1.0, 2.0, 0.5]
+    M = pi.spacecraft_frame(R, v)
+    for method in ("rotations", "quaternion", "orbit"):
+        assert np.max(np.abs(pi.spacecraft_frame(R, v, method=method) - M)) < 1e-12, method
+    # orthonormal, right-handed, x up, y along the horizontal velocity
+    assert np.max(np.abs(M @ np.swapaxes(M, 1, 2) - np.eye(3))) < 1e-13
+    assert np.allclose(np.linalg.det(M), 1.0)
+    rh = R / np.linalg.norm(R, axis=1, keepdims=True)
+    assert np.max(np.abs(M[:, 0] - rh)) < 1e-15
+    vp = v - np.sum(v * rh, axis=1, keepdims=True) * rh
+    assert np.max(np.abs(M[:, 1] - vp / np.linalg.norm(vp, axis=1, keepdims=True))) < 1e-13
+    # quaternion: q* w q gives the frame coordinates M w; q e_i q* gives the axes
+    q = pi.spacecraft_quaternion(R, v)
+    w = rng.standard_normal((200, 3))
+    wq = np.concatenate([np.zeros((200, 1)), w], axis=1)
+    coords = F.quat_multiply(F.quat_multiply(F.quat_conjugate(q), wq), q)[:, 1:]
+    assert np.max(np.abs(coords - np.einsum("nij,nj->ni", M, w))) < 1e-12
+    assert np.max(np.abs(F.quat_rotate(q, np.array([1.0, 0, 0])) - rh)) < 1e-13
+    # the notes' first construction: the frame of the osculating orbit
+    _, q_orb, (node, inc, nu) = F.orbit_frame(R, v)
+    assert np.max(np.abs(np.swapaxes(F.quat_to_matrix(q_orb), 1, 2) - M)) < 1e-12
+    h = np.cross(R, v)
+    assert np.allclose(np.cos(inc), h[:, 2] / np.linalg.norm(h, axis=1))
+
+
+def test_alpha_sign_on_a_southbound_track():
+    # the notes' alpha = arccos(v_perp . east) is 45 deg both northbound and southbound
+    R = _xyz(0.0, 0.0, 3800.0)
+    north_east, south_east = np.array([0, 1.0, 1.0]), np.array([0, 1.0, -1.0])
+    _, _, a_n = F.frame_angles(R, north_east)
+    _, _, a_s = F.frame_angles(R, south_east)
+    assert np.allclose(np.degrees([a_n[0], a_s[0]]), [45, -45])
+    M = pi.spacecraft_frame(R, south_east, method="rotations")
+    assert np.allclose(M[1], south_east / np.sqrt(2), atol=1e-15)
+
+
+def test_gsh_coordinates_azimuth_elevation(spheroid):
+    rng = np.random.default_rng(9)
+    R, v = _random_states(rng, 6)
+    fp = pi.footprint(spheroid, R, v)
+    M = pi.spacecraft_frame(R, v)
+    g = np.einsum("pij,pj->pi", M[fp.spectrum], spheroid.r[fp.cell] - R[fp.spectrum])
+    assert np.max(np.abs(g - fp.gsh)) < 1e-9
+    az = np.degrees(np.arctan2(g[:, 2], g[:, 1])) % 360
+    el = np.degrees(np.arctan2(g[:, 0], np.hypot(g[:, 1], g[:, 2])))
+    assert np.max(np.abs((fp.azimuth - az + 180) % 360 - 180)) < 1e-8
+    assert np.max(np.abs(fp.elevation - el)) < 1e-9
+    assert np.all(fp.elevation < 0)
+
+
+# ---------------------------------------------------------------------------------------------
+# air mass and scale height
+# ---------------------------------------------------------------------------------------------
+def test_scale_height_mars_defaults():
+    g = 42828.369773939e9 / 3389.5e3 ** 2
+    H = 1.380649e-23 * 210 / (43.34 * 1.66053906660e-27 * g) / 1e3
+    assert math.isclose(pi.scale_height(), H, rel_tol=1e-14)
+    assert 10.7 < H < 10.9
+    assert math.isclose(pi.scale_height(T=150.0, r=3500.0), H * 150 / 210 * (3500 / 3389.5) ** 2, rel_tol=1e-13)
+
+
+def test_airmass_models_and_their_table():
+    z = np.array([0.0, 60.0, 80.0, 85.0])
+    sec = 1 / np.cos(np.radians(z))
+    s1 = sec - 1
+    assert np.allclose(pi.airmass(z, model="secant"), sec, rtol=1e-15)
+    assert np.allclose(pi.airmass(z, model="hardie"),
+                       sec - 0.0018167 * s1 - 0.002875 * s1 ** 2 - 0.0008083 * s1 ** 3, rtol=1e-15)
+    assert np.allclose(pi.airmass(z, model="notes"),
+                       sec - 0.018167 * s1 ** 2 - 0.002875 * s1 ** 3 - 0.0008083 * s1 ** 4, rtol=1e-15)
+    ch = pi.airmass(z, model="chapman")
+    notes = pi.airmass(z, model="notes")
+    # taken as printed the notes' series is ~12 % low at 80 deg and negative at 85 deg (Mars)
+    assert 0.11 < 1 - notes[2] / ch[2] < 0.14
+    assert notes[3] < 0 < ch[3]
+    assert np.isnan(pi.airmass(90.0, model="notes")) and np.isinf(pi.airmass(90.0, model="secant"))
+
+
+def test_chapman_closed_forms():
+    x = 3389.5 / pi.scale_height()
+    H = pi.scale_height()
+    # zenith: 1; horizon: x e^x K1(x) from the asymptotic series of K1 (error ~1e-12 at x ~ 314)
+    assert math.isclose(pi.airmass(0.0), 1.0, rel_tol=1e-14)
+    k1 = math.sqrt(math.pi * x / 2) * (1 + 3 / (8 * x) - 15 / (128 * x ** 2) + 315 / (3072 * x ** 3))
+    assert math.isclose(float(pi.airmass(90.0)), k1, rel_tol=1e-9)
+    # straight down through the centre: 2 e^x - 1 (exact); use a small x to stay finite
+    assert math.isclose(float(F.chapman(5.0, 180.0)), 2 * math.exp(5.0) - 1, rel_tol=1e-12)
+    # large x tends to sec z (plane parallel)
+    assert math.isclose(float(F.chapman(1e8, 60.0)), 2.0, rel_tol=1e-7)
+    # continuous through 90 deg
+    a, b = pi.airmass([89.999999, 90.000001], H=H, R=3389.5)
+    assert abs(a - b) / a < 1e-5
+    # beyond 90 it keeps growing (the line descends below the observer)
+    z = np.linspace(80, 110, 31)
+    assert np.all(np.diff(pi.airmass(z)) > 0)
+
+
+def test_chapman_against_a_direct_integral():
+    """Brute-force trapezoid on the line integral (a different variable and rule)."""
+    H, R = 11.0, 3389.5
+    for zdeg in (30.0, 75.0, 88.0, 90.0, 93.0):
+        zr = math.radians(zdeg)
+        w = np.linspace(0, 60.0, 1_200_001)
+        s = w * w                                 # path length along the line, sqrt-spaced
+        r = np.sqrt(R * R + s * s + 2 * R * s * math.cos(zr))
+        integral = np.trapezoid(np.exp(-(r - R) / H) * 2 * w / H, w)
+        assert math.isclose(float(pi.airmass(zdeg, H=H, R=R)), integral, rel_tol=1e-8), zdeg
+
+
+# ---------------------------------------------------------------------------------------------
+# flux cone, result containers
+# ---------------------------------------------------------------------------------------------
+def test_flux_fraction_cone(sphere):
+    rng = np.random.default_rng(10)
+    R, v = _random_states(rng, 5)
+    full = pi.footprint(sphere, R, v)
+    w = F.flux_weights(full)
+    for q in (0.25, 0.5, 0.9):
+        fp = pi.footprint(sphere, R, v, flux_fraction=q)
+        for s in range(5):
+            mine = fp.spectrum == s
+            psi_q = fp.nadir_angle[mine].max()
+            ws = w[full.spectrum == s]
+            psi = full.nadir_angle[full.spectrum == s]
+            inside = ws[psi <= psi_q].sum() / ws.sum()
+            below = ws[psi < psi_q].sum() / ws.sum()
+            assert below < q <= inside + 1e-12
+            assert math.isclose(fp.zeta[s], math.cos(math.radians(psi_q)), rel_tol=1e-14)
+            assert mine.sum() == (psi <= psi_q).sum()
+    assert len(pi.footprint(sphere, R, v, flux_fraction=1.0)) == len(full)
+
+
+def test_result_exports(sphere):
+    pytest.importorskip("xarray")
+    R = np.array([_xyz(10, 20, 3800), _xyz(12, 21, 3800)])
+    fp = pi.footprint(sphere, R, [0, 0, 1.0], zeta=0.9)
+    ds = fp.to_xarray()
+    assert ds.sizes["pair"] == len(fp) and ds.sizes["spectrum"] == 2
+    dense = fp.to_xarray("dense")
+    assert dense["emission"].dims == ("spectrum", "cell")
+    k = 5
+    cell_pos = int(np.searchsorted(dense.cell.values, fp.cell[k]))
+    assert dense["emission"].values[fp.spectrum[k], cell_pos] == fp.emission[k]
+    assert np.isnan(dense["emission"].values).any()
+    assert np.all(np.isfinite(fp.airmass)) and np.all(fp.airmass >= 1)
+    cols = fp.to_table()
+    assert len(cols["lat"]) == len(fp) and "gsh_x" in cols
+    ct = sphere.to_xarray()
+    assert ct.sizes["cell"] == len(sphere)
+
+
+# ---------------------------------------------------------------------------------------------
+# bad input
+# ---------------------------------------------------------------------------------------------
+def test_status_codes_agree_with_the_fortran():
+    from planet_intersect import _core
+
+    assert list(F.FOOTPRINT_STATUS) == list(_core.core_footprint_codes())
+
+
+def test_bad_input_raises_clear_errors(sphere):
+    with pytest.raises(ValueError, match="cell_deg must divide 180"):
+        pi.CellTable(sphere.dem, 0.7)
+    with pytest.raises(ValueError, match="cell_deg"):
+        pi.CellTable(sphere.dem, float("nan"))
+    with pytest.raises(TypeError, match="dem"):
+        pi.CellTable("mars.hdr")
+    R = _xyz(0, 0, 3800)
+    with pytest.raises(ValueError, match=r"R\[0\] has NaN"):
+        pi.footprint(sphere, [np.nan, 0, 0], [0, 0, 1])
+    with pytest.raises(ValueError, match="not above the highest cell"):
+        pi.footprint(sphere, _xyz(0, 0, 3000), [0, 0, 1])
+    with pytest.raises(ValueError, match="zeta"):
+        pi.footprint(sphere, R, [0, 0, 1], zeta=1.5)
+    with pytest.raises(ValueError, match="not both"):
+        pi.footprint(sphere, R, [0, 0, 1], zeta=0.5, flux_fraction=0.5)
+    with pytest.raises(ValueError, match="flux_fraction"):
+        pi.footprint(sphere, R, [0, 0, 1], flux_fraction=0.0)
+    with pytest.raises(ValueError, match="perpendicular"):
+        pi.footprint(sphere, R, R)
+    with pytest.raises(ValueError, match="area"):
+        pi.footprint(sphere, R, [0, 0, 1], area=-1)
+    with pytest.raises(ValueError, match="shape"):
+        pi.footprint(sphere, np.ones((2, 2)), [0, 0, 1])
+    with pytest.raises(ValueError, match="model"):
+        pi.airmass(30, model="kasten")
+    with pytest.raises(ValueError, match="z_deg"):
+        pi.airmass(np.nan)
+    with pytest.raises(ValueError, match="T must be"):
+        pi.scale_height(T=-5)
+    with pytest.raises(ValueError, match="threads"):
+        pi.footprint(sphere, R, [0, 0, 1], threads=-1)
+    with pytest.raises(ValueError, match="threads"):
+        pi.footprint(sphere, R, [0, 0, 1], threads=10 ** 6)
+    with pytest.raises(ValueError, match="use larger cells"):
+        pi.CellTable(sphere.dem, 0.001)
+    with pytest.raises(ValueError, match="v: 2 velocities"):
+        pi.footprint(sphere, R, [[0, 0, 1.0], [0, 1.0, 0]])
+
+
+# ---------------------------------------------------------------------------------------------
+# eccentric orbit (notes' last section)
+# ---------------------------------------------------------------------------------------------
+def test_eccentric_orbit_study(sphere):
+    st = F.orbit_study(sphere, n=181)
+    # the notes' 16 % from their own altitudes 385.6 and 454.4 km above 3397 km
+    a = lambda h: h / (3397.0 + h)       # noqa: E731  (cap area / 2 pi r^2)
+    assert math.isclose(st.notes_variation, a(454.4) / a(385.6) - 1, rel_tol=1e-12)
+    assert round(100 * st.notes_variation) == 16
+    assert math.isclose(st.area_variation, a(450.0) / a(387.0) - 1, rel_tol=1e-6)
+    assert 0.14 < st.area_variation < 0.145
+    # periapsis at t = 0, apoapsis half an orbit later; altitudes 387 and 450 km
+    assert st.periapsis_index == 0 and abs(st.apoapsis_index - 90) <= 1
+    assert math.isclose(st.altitude.min(), 387.0, abs_tol=1e-6)
+    assert math.isclose(st.altitude.max(), 450.0, abs_tol=1e-3)
+    # more cells above the horizon at apoapsis; nadir angles to a fixed ground offset shrink with altitude
+    c0 = st.counts[0.0]
+    assert c0[st.apoapsis_index] > c0[st.periapsis_index]
+    assert np.all(st.nadir[st.apoapsis_index] < st.nadir[st.periapsis_index])
+
+
+def test_keplerian_states_conserve_energy_and_momentum():
+    t = np.linspace(0, 7000, 50)
+    R, v = F.keplerian_states(t, 3784.0, 3847.0, 93.1, rotation_rate=0.0)
+    eps = 0.5 * np.sum(v * v, axis=1) - F.MARS_GM / np.linalg.norm(R, axis=1)
+    assert np.ptp(eps) / abs(eps.mean()) < 1e-12
+    assert math.isclose(eps.mean(), -F.MARS_GM / (3784.0 + 3847.0), rel_tol=1e-12)
