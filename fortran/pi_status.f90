@@ -16,6 +16,9 @@ module pi_status
   ! per-ray codes
   public :: ray_hit, ray_limb, ray_away, ray_hit_unconverged, ray_bad_direction, &
             ray_bad_position, ray_inside, ray_read_error
+  ! per-ray codes of the geodetic DSM tracing (Shin & Park), appended
+  public :: ray_no_data, ray_left_dsm, ray_dsm_miss, ray_not_converged, ray_oscillation, &
+            ray_step_limit
 
   !> Success.
   integer, parameter :: stat_ok = 0
@@ -63,4 +66,20 @@ module pi_status
   integer, parameter :: ray_inside = 6
   !> A DEM record could not be read (dem_read_mode = 1) or is invalid.
   integer, parameter :: ray_read_error = 7
+
+  ! ---- geodetic DSM tracing (Shin & Park: pi_follow, pi_dsm_exact) ----
+  !> DSM: before any hit the ray passes low (h <= H_max) over a no-data point;
+  !> the event point is set, no hit is guessed.
+  integer, parameter :: ray_no_data = 8
+  !> DSM: no hit, but the ray is low (h <= H_max) at a point outside the DSM's
+  !> defined area (it left the DSM or never entered it); the event point is set.
+  integer, parameter :: ray_left_dsm = 9
+  !> DSM: the ray never comes down to H_max (passes above everything or points away).
+  integer, parameter :: ray_dsm_miss = 10
+  !> DSM, iterative ray tracing: no convergence within the iteration limit.
+  integer, parameter :: ray_not_converged = 11
+  !> DSM, iterative ray tracing: the iteration revisits a height (endless oscillation).
+  integer, parameter :: ray_oscillation = 12
+  !> DSM: the step or segment limit was reached before an answer.
+  integer, parameter :: ray_step_limit = 13
 end module pi_status

@@ -15,12 +15,15 @@ from ._status import DEMError, RayStatus, RAY_STATUS
 from .dem import DEM, read_header
 from .geometry import detector_los, spheroid_radius, ray_spheroid_intersection
 from .intersect import IntersectResult, intersect
+from .geodetic import ecef_to_geodetic, geodetic_to_ecef
+from .dsm import DSMError, DSMResult, DSMStatus, DSM_RAY_STATUS, GeodeticDSM
 
 __version__ = "0.1.0"
 
 __all__ = [
     "DEM", "DEMError", "IntersectResult", "RAY_STATUS", "RayStatus", "detector_los", "intersect",
     "ray_spheroid_intersection", "read_header", "spheroid_radius", "legacy_paths",
+    "GeodeticDSM", "DSMResult", "DSMStatus", "DSMError", "DSM_RAY_STATUS", "ecef_to_geodetic", "geodetic_to_ecef",
 ]
 
 
