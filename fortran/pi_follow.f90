@@ -69,10 +69,25 @@ contains
     real(dp), intent(out) :: r
     logical, intent(out) :: found
     integer, intent(inout) :: neval
-    real(dp) :: lat, lon, h, dh, dr
+    real(dp) :: lat, lon, h, dh, dr, rg
+    logical :: hit
     integer :: it
     r = r0
     found = .false.
+    ! start near the crossing: the first intersection with the ellipsoid raised
+    ! by `level` (a + level, b + level), used only when h is still above the
+    ! level and falling there (then it lies before the crossing)
+    ! (raised by a margin: the level surface bulges past that ellipsoid by up
+    ! to ~e2^2 |level| / 32, measured)
+    if (level > -0.5_dp * dsm%b) then
+      rg = level + 1.0e-9_dp * dsm%a + dsm%e2**2 * abs(level) / 8.0_dp
+      call ellipsoid_entry(dsm%a + rg, dsm%b + rg, s, l, rg, hit)
+      if (hit .and. rg > r0) then
+        call ray_geo(dsm, s, l, rg, lat, lon, h, dh)
+        neval = neval + 1
+        if (h - level > 0.0_dp .and. dh < 0.0_dp) r = rg
+      end if
+    end if
     do it = 1, 300
       call ray_geo(dsm, s, l, r, lat, lon, h, dh)
       neval = neval + 1
