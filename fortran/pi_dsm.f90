@@ -197,7 +197,14 @@ contains
       i1 = min(ceiling(min(v1, real(dsm%nrows - 1, dp))), dsm%nrows - 1)
       j0 = int(max(u0, 0.0_dp))
       j1 = min(ceiling(min(u1, real(dsm%ncols - 1, dp))), dsm%ncols - 1)
-      hb = range_max(dsm, i0, i1, j0, j1)
+      if (i1 - i0 <= 2 .and. j1 - j0 <= 2) then
+        ! a few cells: the bilinear surface's own maximum over the box (a
+        ! bilinear function on a rectangle peaks at one of its corners)
+        hb = bilinear_box_max(dsm, max(u0, 0.0_dp), min(u1, real(dsm%ncols - 1, dp)), &
+                              max(v0, 0.0_dp), min(v1, real(dsm%nrows - 1, dp)), i0, i1, j0, j1)
+      else
+        hb = range_max(dsm, i0, i1, j0, j1)
+      end if
     else
       e = 0.5_dp
       out = v0 < -e .or. v1 > dsm%nrows - e
@@ -229,6 +236,53 @@ contains
       hb = range_max(dsm, i0, i1, j0, j1)
     end if
   end subroutine dsm_box_bound
+
+  !> Maximum of the bilinear surface over [u0, u1] x [v0, v1] (inside the grid),
+  !> whose node range is rows i0..i1, columns j0..j1: per cell, the largest of
+  !> the surface at the corners of the box's part in that cell (+huge on no-data).
+  pure function bilinear_box_max(dsm, u0, u1, v0, v1, i0, i1, j0, j1) result(hb)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: u0, u1, v0, v1
+    integer, intent(in) :: i0, i1, j0, j1
+    real(dp) :: hb, h00, h01, h10, h11, a0, a1, b0, b1, fu, fv
+    integer :: ci, cj, ka, kb
+    hb = -huge(1.0_dp)
+    do ci = i0, max(i0, i1 - 1)
+      do cj = j0, max(j0, j1 - 1)
+        if (ci + 1 > dsm%nrows - 1 .or. cj + 1 > dsm%ncols - 1) then   ! a degenerate box on the last node line
+          h00 = dsm%hgt(cj + 1, ci + 1)
+          if (ieee_is_nan(h00)) then
+            hb = huge(1.0_dp)
+            return
+          end if
+          hb = max(hb, range_max(dsm, ci, min(ci + 1, dsm%nrows - 1), cj, min(cj + 1, dsm%ncols - 1)))
+          cycle
+        end if
+        h00 = dsm%hgt(cj + 1, ci + 1)
+        h01 = dsm%hgt(cj + 2, ci + 1)
+        h10 = dsm%hgt(cj + 1, ci + 2)
+        h11 = dsm%hgt(cj + 2, ci + 2)
+        if (ieee_is_nan(h00) .or. ieee_is_nan(h01) .or. ieee_is_nan(h10) .or. ieee_is_nan(h11)) then
+          hb = huge(1.0_dp)
+          return
+        end if
+        a0 = max(v0, real(ci, dp)) - ci
+        a1 = min(v1, real(ci + 1, dp)) - ci
+        b0 = max(u0, real(cj, dp)) - cj
+        b1 = min(u1, real(cj + 1, dp)) - cj
+        if (a1 < a0 .or. b1 < b0) cycle
+        do ka = 0, 1
+          fv = merge(a0, a1, ka == 0)
+          do kb = 0, 1
+            fu = merge(b0, b1, kb == 0)
+            hb = max(hb, (1.0_dp - fv) * ((1.0_dp - fu) * h00 + fu * h01) + fv * ((1.0_dp - fu) * h10 + fu * h11))
+          end do
+        end do
+      end do
+    end do
+    ! rounding of the interpolation: never below the computed values by more than a few ulps
+    hb = hb + 4.0_dp * spacing(max(abs(hb), 1.0_dp))
+  end function bilinear_box_max
 
   !> Largest height over rows i0..i1, columns j0..j1 (0-based, inclusive,
   !> inside the grid), no-data as +huge: at most 2 x 2 blocks of one pyramid level.

@@ -44,7 +44,7 @@ module pi_dsm_exact
   !> method codes of dsm_trace_packed
   integer, parameter :: dsm_method_following = 0, dsm_method_exact = 1, dsm_method_iterative = 2
   !> segment limit per ray (then ray_step_limit) and subdivision stack depth
-  integer, parameter :: exact_maxseg = 2000000, exact_depth = 128
+  integer, parameter :: exact_maxseg = 200000, exact_depth = 128
 
   !> a point of the ray with what the bounds need
   type :: rpt_t
