@@ -183,3 +183,14 @@ def test_read_bad_raster(tmp_path):
     f.write_bytes(b"garbage")
     with pytest.raises(DSMError, match="x.tif: cannot be opened as a raster"):
         GeodeticDSM.read(f)
+
+
+def test_dsm_status_table_matches_compiled_codes():
+    from planet_intersect import _core
+    from planet_intersect._status import RAY_STATUS, DSMStatus
+
+    codes = list(_core.core_dsm_codes())
+    assert codes == [DSMStatus.NO_DATA, DSMStatus.LEFT_DSM, DSMStatus.MISS, DSMStatus.NOT_CONVERGED,
+                     DSMStatus.OSCILLATION, DSMStatus.STEP_LIMIT] == list(range(8, 14))
+    assert not set(codes) & set(RAY_STATUS)                      # the DEM codes keep their numbers
+    assert sorted(pi.DSM_RAY_STATUS) == [0, 3, 4, 5, 6] + codes

@@ -297,3 +297,23 @@ def test_result_export(city):
     table = res.to_table()
     np.testing.assert_array_equal(table["p_z"], res.p[:, 2])
     assert len(res) == 5
+
+
+def test_cli_run_on_a_dsm(tmp_path, capsys):
+    from planet_intersect.cli import main
+
+    h = np.full((200, 200), 0.0)
+    h[:, 100:140] = 50.0
+    f = tmp_path / "block.npz"
+    np.savez(f, heights=h, lat_first=45.0, lon_first=10.0, dlat=1e-5, dlon=1e-5, interpolation="nearest")
+    s1, d1 = ray_to(45.001, 10.0 + 146e-5, 0.0, 30.0, 90.0)           # roof (test above)
+    s2, d2 = ray_to(45.001, 10.0 + 50e-5, 0.0, 10.0, 0.0)              # ground in front
+    rays = tmp_path / "rays.txt"
+    np.savetxt(rays, np.array([np.r_[s1, d1], np.r_[s2, d2]]), fmt="%.17g")
+    assert main(["run", str(f), str(rays), "--out", str(tmp_path / "out"), "--method", "exact"]) == 0
+    assert "2 rays (exact over the DSM" in capsys.readouterr().out
+    table = np.genfromtxt(tmp_path / "out" / "run-001" / "results.csv", delimiter=",", names=True)
+    np.testing.assert_allclose(table["height"], [50.0, 0.0], atol=1e-5)
+    assert list(table["status"]) == [0, 0]
+    assert main(["run", str(f), str(rays), "--method", "stepping", "--out", str(tmp_path / "o2")]) == 2
+    assert "method for a GeodeticDSM must be" in capsys.readouterr().err

@@ -3,6 +3,7 @@
     planet-intersect demo [--out DIR] [--ppd N] [--pixels N]
     planet-intersect run DEM RAYS [--out DIR] [--step-mode 0|1] [--dem-read-mode 0|1] [--tangent exact|paper]
                          [--method stepping|exact] [--threads N] [--io records|mmap]
+    planet-intersect run DSM.tif|DSM.npz RAYS [--method following|exact|iterative] [--interpolation ...]
     planet-intersect examples olympus|limb [--dem HDR | --mola IMG] [--out DIR]
     planet-intersect import-mola OUT (--radius IMG | --topography IMG --areoid IMG) [--overwrite]
     planet-intersect fetch-mola DEST [--product megr90n000cb|megr90n000eb]
@@ -169,10 +170,13 @@ def intersect_in_chunks(dem, s, l, chunk: int = 200_000, **kwargs):
 def _run(args) -> int:
     from . import DEM
 
+    if Path(args.dem).suffix.lower() in (".tif", ".tiff", ".npz"):    # a geodetic DSM (Shin & Park)
+        return _run_dsm(args)
     dem = DEM.read(args.dem)
     s, l = _read_rays(Path(args.rays))
     res = intersect_in_chunks(dem, s, l, step_mode=args.step_mode, dem_read_mode=args.dem_read_mode,
-                              tangent=args.tangent, method=args.method, threads=args.threads, io=args.io)
+                              tangent=args.tangent, method=args.method or "stepping", threads=args.threads,
+                              io=args.io)
     out = _new_run_dir(Path(args.out))
     write_csv(out / "results.csv", res)
     written = [out / "results.csv"]
@@ -183,6 +187,36 @@ def _run(args) -> int:
         print(f"  (no NetCDF output: {exc}; pip install 'planet-intersect[xarray]')")
     print(f"{len(res)} rays: {int(res.hit.sum())} hit, {int((res.status == 1).sum())} limb, "
           f"{int((res.status == 2).sum())} away; wrote {', '.join(map(str, written))}")
+    return 0
+
+
+def _run_dsm(args) -> int:
+    """`run` on a geodetic DSM (GeoTIFF or .npz): rays in its ellipsoid's ECR frame."""
+    from . import intersect
+    from .dsm import DSMResult, DSMStatus, GeodeticDSM
+
+    dsm = GeodeticDSM.read(args.dem, interpolation=args.interpolation)
+    s, l = _read_rays(Path(args.rays))
+    method = args.method or "following"
+    n = max(len(s), len(l))
+    bar = Progress(n, "rays", min_total=200_001)
+    parts = []
+    for a in range(0, n, 200_000):
+        parts.append(intersect(dsm, s[a:a + 200_000], l[a:a + 200_000], method=method, threads=args.threads))
+        bar(min(a + 200_000, n))
+    res = parts[0] if len(parts) == 1 else DSMResult(
+        **{k: np.concatenate([getattr(p, k) for p in parts]) for k in parts[0].__dataclass_fields__})
+    out = _new_run_dir(Path(args.out))
+    write_csv(out / "results.csv", res)
+    written = [out / "results.csv"]
+    try:
+        res.to_xarray().to_netcdf(out / "results.nc", engine="h5netcdf")
+        written.append(out / "results.nc")
+    except ImportError as exc:
+        print(f"  (no NetCDF output: {exc}; pip install 'planet-intersect[xarray]')")
+    print(f"{len(res)} rays ({method} over the DSM {args.dem}): {int(res.hit.sum())} hit, "
+          f"{int((res.status == DSMStatus.NO_DATA).sum())} no data, {int((res.status == DSMStatus.LEFT_DSM).sum())} "
+          f"left the DSM, {int((res.status == DSMStatus.MISS).sum())} miss; wrote {', '.join(map(str, written))}")
     return 0
 
 
@@ -258,15 +292,17 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--pixels", type=int, default=101, help="detector pixels per side (default 101, as the paper's Fig. 8)")
     d.set_defaults(func=_demo)
     r = sub.add_parser("run", help="intersect the rays of a text file (sx sy sz lx ly lz per line) with a DEM")
-    r.add_argument("dem", help="DEM as NAME, NAME.hdr or NAME.dem")
+    r.add_argument("dem", help="DEM as NAME, NAME.hdr or NAME.dem; or a geodetic DSM (.tif GeoTIFF, .npz)")
     r.add_argument("rays", help="text file, one ray per line: sx sy sz lx ly lz")
     r.add_argument("--out", default="planet-intersect-output", help="results go to a new run-NNN folder here")
     r.add_argument("--step-mode", type=int, choices=(0, 1), default=1)
     r.add_argument("--dem-read-mode", type=int, choices=(0, 1), default=0)
     r.add_argument("--tangent", choices=("exact", "paper"), default="exact",
                    help="spheroid tangent point: true nearest point (default) or the paper's eqs. 55-58")
-    r.add_argument("--method", choices=("stepping", "exact"), default="stepping",
-                   help="the paper's ray stepping (default) or the exact first hit")
+    r.add_argument("--method", choices=("stepping", "exact", "following", "iterative"), default=None,
+                   help="DEM: stepping (default) or exact; DSM: following (default), exact or iterative")
+    r.add_argument("--interpolation", choices=("bilinear", "nearest"), default=None,
+                   help="DSM surface (default: nearest for a warped projected raster, else bilinear)")
     r.add_argument("--threads", type=int, default=0, help="OpenMP threads (default 0: all cores)")
     r.add_argument("--io", choices=("records", "mmap"), default="records",
                    help="with --dem-read-mode 1: one read per record (default) or a memory map")

@@ -22,48 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ._status import DSM_RAY_STATUS, DSMError, DSMStatus
 from .geodetic import WGS84_A, WGS84_F, _wrap180, check_ellipsoid, ecef_to_geodetic
 
 __all__ = ["GeodeticDSM", "DSMResult", "DSMError", "DSMStatus", "DSM_RAY_STATUS", "intersect_dsm"]
 
 _INTERP = {"bilinear": 0, "nearest": 1}
 _DSM_METHODS = {"following": 0, "exact": 1, "iterative": 2}
-
-
-class DSMError(ValueError):
-    """A DSM array, grid or file is unusable; the message names it and the problem."""
-
-
-class DSMStatus:
-    """Per-ray status codes of :class:`DSMResult` (docs/status-codes.md)."""
-
-    HIT = 0  #: the ray meets the surface: p, lat, lon, height, distance set
-    HIT_UNCONVERGED = 3  #: hit; the refinement stopped at its iteration limit (best estimate)
-    BAD_DIRECTION = 4  #: line of sight zero or non-finite (rejected by Python before)
-    BAD_POSITION = 5  #: focal point non-finite (rejected by Python before)
-    INSIDE = 6  #: the focal point is at or below the surface (Python raises ValueError)
-    NO_DATA = 8  #: the ray passes low over a no-data point first; event point set
-    LEFT_DSM = 9  #: the ray is low outside the DSM's area before any hit; event point set
-    MISS = 10  #: the ray never comes down to H_max
-    NOT_CONVERGED = 11  #: iterative: no convergence within 100 iterations (last point in p)
-    OSCILLATION = 12  #: iterative: the heights repeat, it would iterate forever (last point in p)
-    STEP_LIMIT = 13  #: step/segment limit reached before an answer
-
-
-#: per-ray code -> short description
-DSM_RAY_STATUS = {
-    DSMStatus.HIT: "hit",
-    DSMStatus.HIT_UNCONVERGED: "hit, refinement not converged to tolerance",
-    DSMStatus.BAD_DIRECTION: "invalid line of sight",
-    DSMStatus.BAD_POSITION: "invalid focal point",
-    DSMStatus.INSIDE: "focal point at or below the surface",
-    DSMStatus.NO_DATA: "no data where the ray could first hit",
-    DSMStatus.LEFT_DSM: "left the DSM (or never entered it) before hitting",
-    DSMStatus.MISS: "passes above the DSM (never below H_max)",
-    DSMStatus.NOT_CONVERGED: "iterative ray tracing did not converge",
-    DSMStatus.OSCILLATION: "iterative ray tracing oscillates (endless iteration)",
-    DSMStatus.STEP_LIMIT: "step limit reached",
-}
 
 
 def _number(value, name: str) -> float:
