@@ -194,3 +194,12 @@ def test_dsm_status_table_matches_compiled_codes():
                      DSMStatus.OSCILLATION, DSMStatus.STEP_LIMIT] == list(range(8, 14))
     assert not set(codes) & set(RAY_STATUS)                      # the DEM codes keep their numbers
     assert sorted(pi.DSM_RAY_STATUS) == [0, 3, 4, 5, 6] + codes
+
+
+def test_geoid_from_a_second_raster(tmp_path):
+    f = tmp_path / "geoid.npz"
+    np.savez(f, heights=np.full((2, 3), 47.5), lat_first=0.0, lon_first=0.0, dlat=1.0, dlon=1.0)
+    dsm = GeodeticDSM.from_array(np.ones((2, 3)), 0.0, 0.0, 1.0, 1.0, geoid=f)
+    assert (dsm.heights == 48.5).all()
+    with pytest.raises(DSMError, match="geoid raster .*grid differs"):
+        GeodeticDSM.from_array(np.ones((2, 3)), 0.0, 0.0, 1.0, 2.0, geoid=f)

@@ -82,8 +82,9 @@ class GeodeticDSM:
             Ellipsoid (WGS-84 by default; e.g. Mars's for areodetic heights).
         nodata : float, optional
             Value marking no data (besides NaN).
-        geoid : float or array [nrows, ncols], optional
-            Geoid undulation N added to heights above the geoid: ``h = H + N``.
+        geoid : float, array [nrows, ncols] or path, optional
+            Geoid undulation N added to heights above the geoid: ``h = H + N``;
+            a path is read with :meth:`read` and must have the same grid.
         interpolation : "bilinear" or "nearest"
             Bilinear in (lat, lon) between pixel centres, or flat-topped cells
             with vertical walls (building DSMs).
@@ -126,6 +127,14 @@ class GeodeticDSM:
         if ncols * dlon > 360.0 * (1 + 1e-12):
             raise DSMError(f"ncols * dlon = {ncols * dlon} degrees exceeds 360")
         a, f = check_ellipsoid(a, f)
+        if isinstance(geoid, (str, os.PathLike)):            # a second raster on the same grid
+            g = GeodeticDSM.read(geoid, a=a, f=f)
+            same = (g.heights.shape == h.shape and
+                    np.allclose([g.lat_first, g.lon_first, g.dlat, g.dlon], [lat_first, lon_first, dlat, dlon],
+                                rtol=0, atol=1e-9 * max(abs(dlat), abs(dlon))))
+            if not same:
+                raise DSMError(f"geoid raster {geoid}: its grid differs from the heights' grid")
+            geoid = np.asarray(g.heights)
         if geoid is not None:
             try:
                 n_ = np.asarray(geoid, dtype=np.float64)
