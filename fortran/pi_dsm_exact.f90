@@ -77,14 +77,17 @@ contains
   !> Bounds for the segment [pa, pb]: hlow <= h on it (convexity, the end
   !> tangents), hb >= the surface over the part of its (lat, lon) box inside the
   !> DSM (+huge: unknown or no-data), out: the box reaches outside the DSM;
-  !> cell >= 0 when the box lies within one "nearest" cell (its height in hb).
-  pure subroutine segment_bounds(dsm, s, l, pa, pb, hlow, hb, out, cell)
+  !> cell >= 0 when the box lies within one "nearest" cell (its height in hb);
+  !> rsplit > 0: the estimated crossing of the one cell boundary the box straddles.
+  pure subroutine segment_bounds(dsm, s, l, pa, pb, hlow, hb, out, cell, rsplit)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: s(3), l(3)
     type(rpt_t), intent(in) :: pa, pb
-    real(dp), intent(out) :: hlow, hb
+    real(dp), intent(out) :: hlow, hb, rsplit
     logical, intent(out) :: out
     integer, intent(out) :: cell
+    integer :: ci0, ci1, cj0, cj1
+    real(dp) :: t, ub, rb0
     real(dp) :: rstar, mmin, den, rho, kap, keff, llen, lat_lo, lat_hi, w, v0, v1, u0, u1, du
     llen = pb%r - pa%r
     if (pa%dh >= 0.0_dp) then
@@ -100,6 +103,7 @@ contains
     hb = huge(1.0_dp)
     out = .true.
     cell = -1
+    rsplit = 0.0_dp
     mmin = dsm%a * (1.0_dp - dsm%e2)                      ! smallest meridian radius of curvature
     den = mmin + min(hlow, 0.0_dp)
     if (.not. (den > 0.5_dp * mmin)) return
@@ -122,7 +126,25 @@ contains
     u1 = max(pa%u, pa%u + du / dsm%dlon) + 1.0e-9_dp
     call dsm_box_bound(dsm, u0, u1, v0, v1, hb, out)
     if (dsm%interp == interp_nearest .and. .not. out .and. .not. dsm%global .and. hb < huge(1.0_dp)) then
-      if (ceiling(v0 - 0.5_dp) == floor(v1 + 0.5_dp) .and. ceiling(u0 - 0.5_dp) == floor(u1 + 0.5_dp)) cell = 1
+      ci0 = ceiling(v0 - 0.5_dp); ci1 = floor(v1 + 0.5_dp)
+      cj0 = ceiling(u0 - 0.5_dp); cj1 = floor(u1 + 0.5_dp)
+      if (ci0 == ci1 .and. cj0 == cj1) then
+        cell = 1
+      else if (ci1 - ci0 + cj1 - cj0 == 1) then
+        ! the box straddles one cell boundary (a wall): suggest splitting just
+        ! before the crossing estimated by linear interpolation of u or v, so
+        ! that the part before it is one cell (where the split falls does not
+        ! affect correctness, only how soon the search gets there)
+        if (cj1 > cj0) then
+          ub = cj0 + 0.5_dp
+          rb0 = pa%u + du / dsm%dlon
+          t = (ub - pa%u) / (rb0 - pa%u)
+        else
+          ub = ci0 + 0.5_dp
+          t = (ub - pa%v) / (pb%v - pa%v)
+        end if
+        if (t > 0.0_dp .and. t < 1.0_dp) rsplit = pa%r + t * llen
+      end if
     end if
   end subroutine segment_bounds
 
@@ -132,7 +154,7 @@ contains
     real(dp), intent(in) :: s(3), l(3)
     type(dsm_ray_t), intent(inout) :: res
     type(rpt_t) :: pa, pb, pm, p_in, p_end, stack(exact_depth)
-    real(dp) :: r_in, r_end, r_far, hs, lat, lon, h, dh, hlow, hb, r, g, dr, hc
+    real(dp) :: r_in, r_end, r_far, hs, lat, lon, h, dh, hlow, hb, r, g, dr, hc, rsplit, rm
     logical :: found, out
     integer :: code, nst, nseg, it, cell
     res%nsteps = 0
@@ -174,7 +196,7 @@ contains
     pb = p_end
     nst = 0
     do nseg = 1, exact_maxseg
-      call segment_bounds(dsm, s, l, pa, pb, hlow, hb, out, cell)
+      call segment_bounds(dsm, s, l, pa, pb, hlow, hb, out, cell, rsplit)
       if (hlow > hb) then                                 ! nothing to meet in this segment
         call next_segment(pa, pb, stack, nst)
         if (nst < 0) exit
@@ -230,7 +252,16 @@ contains
         res%status = ray_step_limit
         return
       end if
-      call eval_pt(dsm, s, l, 0.5_dp * (pa%r + pb%r), pm)   ! split at the middle
+      ! split just before (or, from the boundary, just after) a wall crossing, else at the middle
+      rm = 0.5_dp * (pa%r + pb%r)
+      if (rsplit > 0.0_dp) then
+        if (rsplit - 0.25_dp * refine_tol > pa%r + 0.125_dp * refine_tol) then
+          rm = rsplit - 0.25_dp * refine_tol
+        else if (rsplit + 0.25_dp * refine_tol < pb%r - 0.125_dp * refine_tol) then
+          rm = rsplit + 0.25_dp * refine_tol
+        end if
+      end if
+      call eval_pt(dsm, s, l, rm, pm)
       res%nsteps = res%nsteps + 1
       nst = nst + 1
       stack(nst) = pb
@@ -251,7 +282,8 @@ contains
     pb = p_end
     nst = 0
     do nseg = 1, exact_maxseg
-      call segment_bounds(dsm, s, l, pa, pb, hlow, hb, out, cell)
+      call segment_bounds(dsm, s, l, pa, pb, hlow, hb, out, cell, rsplit)
+      rsplit = 0.0_dp
       if (pa%r == r_in) then
         call dsm_height(dsm, pa%lat, pa%lon, hs, code)
         if (code == pt_outside) then
