@@ -217,6 +217,7 @@ end subroutine core_codes
 ! ============================================================================
 ! Footprint geometry (Mars Odyssey GRS notes, issue 13): pi_footprint.
 ! Python: planet_intersect.footprint. Cells and spectra as in pi_footprint.
+! =====================================================================
 ! ============================================================================
 
 !> Footprint cell count per spectrum (first pass). See pi_footprint::footprint_count.
@@ -255,3 +256,89 @@ subroutine core_footprint_codes(codes)
   integer, intent(out) :: codes(5)
   codes = [fp_ok, fp_bad_position, fp_inside, fp_bad_cells, fp_bad_offsets]
 end subroutine core_footprint_codes
+=======
+! Geodetic DSM system (Shin & Park): conversions, DSM heights, ray tracing.
+! Angles radians, lengths in the units of a. Grids are hgt(ncols, nrows), the
+! transpose of Python's heights[nrows, ncols] (no copy).
+! ============================================================================
+
+!> ECR -> geodetic for n points p(3, n): mode 0 exact, 1 Bowring (eq. 2 as
+!> Dana gives it), 2 eq. 2 as printed. lat, lon (radians), h.
+subroutine core_ecr_to_geodetic(n, p, a, f, mode, lat, lon, h)
+  use pi_kinds, only: dp
+  use pi_geodetic, only: ecr_to_geodetic, ecr_to_geodetic_bowring, ecr_to_geodetic_printed
+  implicit none
+  integer, intent(in) :: n, mode
+  real(dp), intent(in) :: p(3, n), a, f
+  real(dp), intent(out) :: lat(n), lon(n), h(n)
+  if (mode == 1) then
+    call ecr_to_geodetic_bowring(p(1, :), p(2, :), p(3, :), a, f, lat, lon, h)
+  else if (mode == 2) then
+    call ecr_to_geodetic_printed(p(1, :), p(2, :), p(3, :), a, f, lat, lon, h)
+  else
+    call ecr_to_geodetic(p(1, :), p(2, :), p(3, :), a, f, lat, lon, h)
+  end if
+end subroutine core_ecr_to_geodetic
+
+!> Geodetic (lat, lon radians, h) -> ECR p(3, n).
+subroutine core_geodetic_to_ecr(n, lat, lon, h, a, f, p)
+  use pi_kinds, only: dp
+  use pi_geodetic, only: geodetic_to_ecr
+  implicit none
+  integer, intent(in) :: n
+  real(dp), intent(in) :: lat(n), lon(n), h(n), a, f
+  real(dp), intent(out) :: p(3, n)
+  call geodetic_to_ecr(lat, lon, h, a, f, p(1, :), p(2, :), p(3, :))
+end subroutine core_geodetic_to_ecr
+
+!> DSM surface height at n points (lat, lon radians); code 0 over data,
+!> 1 outside the defined area, 2 no data (hs NaN then).
+subroutine core_dsm_height(ncols, nrows, hgt, lat0, lon0, dlat, dlon, a, f, interp, n, lat, lon, hs, code)
+  use pi_kinds, only: dp
+  use pi_dsm, only: dsm_t, dsm_attach, dsm_height
+  implicit none
+  integer, intent(in) :: ncols, nrows, interp, n
+  real(dp), intent(in), target :: hgt(ncols, nrows)
+  real(dp), intent(in) :: lat0, lon0, dlat, dlon, a, f, lat(n), lon(n)
+  real(dp), intent(out) :: hs(n)
+  integer, intent(out) :: code(n)
+  real(dp), target :: nopyr(1)
+  integer, target :: nometa(3, 1)
+  type(dsm_t) :: dsm
+  integer :: k
+  nopyr = 0.0_dp
+  nometa = 1
+  call dsm_attach(hgt, lat0, lon0, dlat, dlon, a, f, interp, 0.0_dp, 0.0_dp, nopyr, nometa, dsm)
+  do k = 1, n
+    call dsm_height(dsm, lat(k), lon(k), hs(k), code(k))
+  end do
+end subroutine core_dsm_height
+
+!> Trace n rays over the DSM: method 0 following (Shin & Park), 1 exact,
+!> 2 iterative. pyr/meta: the max-pyramid (dsm.py). Outputs as
+!> pi_dsm_exact::dsm_trace_packed.
+subroutine core_dsm_trace(ncols, nrows, hgt, lat0, lon0, dlat, dlon, a, f, interp, hmax, hmin, &
+                          npyr, pyr, nlev, meta, n, s, l, method, threads, p, q, scal, status, nsteps, stat)
+  use pi_kinds, only: dp
+  use pi_dsm, only: dsm_t, dsm_attach
+  use pi_dsm_exact, only: dsm_trace_packed
+  implicit none
+  integer, intent(in) :: ncols, nrows, interp, npyr, nlev, n, method, threads
+  real(dp), intent(in), target :: hgt(ncols, nrows), pyr(npyr)
+  integer, intent(in), target :: meta(3, nlev)
+  real(dp), intent(in) :: lat0, lon0, dlat, dlon, a, f, hmax, hmin, s(3, n), l(3, n)
+  real(dp), intent(out) :: p(3, n), q(3, n), scal(10, n)
+  integer, intent(out) :: status(n), nsteps(n), stat
+  type(dsm_t) :: dsm
+  call dsm_attach(hgt, lat0, lon0, dlat, dlon, a, f, interp, hmax, hmin, pyr, meta, dsm)
+  call dsm_trace_packed(dsm, n, s, l, method, threads, p, q, scal, status, nsteps, stat)
+end subroutine core_dsm_trace
+
+!> The DSM per-ray codes as compiled (no_data, left_dsm, dsm_miss,
+!> not_converged, oscillation, step_limit), for Python's table check.
+subroutine core_dsm_codes(codes)
+  use pi_status
+  implicit none
+  integer, intent(out) :: codes(6)
+  codes = [ray_no_data, ray_left_dsm, ray_dsm_miss, ray_not_converged, ray_oscillation, ray_step_limit]
+end subroutine core_dsm_codes

@@ -17,6 +17,9 @@ module pi_status
   ! per-ray codes
   public :: ray_hit, ray_limb, ray_away, ray_hit_unconverged, ray_bad_direction, &
             ray_bad_position, ray_inside, ray_read_error, ray_unresolved
+  ! per-ray codes of the geodetic DSM tracing (Shin & Park), appended
+  public :: ray_no_data, ray_left_dsm, ray_dsm_miss, ray_not_converged, ray_oscillation, &
+            ray_step_limit
 
   !> Success.
   integer, parameter :: stat_ok = 0
@@ -74,4 +77,20 @@ module pi_status
   !> The ray could not be resolved in floating point (stat_unresolved or
   !> stat_bad_coord on its path): no result is given, never a guessed one.
   integer, parameter :: ray_unresolved = 8
+
+  ! ---- geodetic DSM tracing (Shin & Park: pi_follow, pi_dsm_exact) ----
+  !> DSM: before any hit the ray passes low (h <= H_max) over a no-data point;
+  !> the event point is set, no hit is guessed.
+  integer, parameter :: ray_no_data = 9
+  !> DSM: no hit, but the ray is low (h <= H_max) at a point outside the DSM's
+  !> defined area (it left the DSM or never entered it); the event point is set.
+  integer, parameter :: ray_left_dsm = 10
+  !> DSM: the ray never comes down to H_max (passes above everything or points away).
+  integer, parameter :: ray_dsm_miss = 11
+  !> DSM, iterative ray tracing: no convergence within the iteration limit.
+  integer, parameter :: ray_not_converged = 12
+  !> DSM, iterative ray tracing: the iteration revisits a height (endless oscillation).
+  integer, parameter :: ray_oscillation = 13
+  !> DSM: the step or segment limit was reached before an answer.
+  integer, parameter :: ray_step_limit = 14
 end module pi_status

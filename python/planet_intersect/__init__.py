@@ -18,6 +18,8 @@ from .intersect import IntersectResult, intersect
 from . import legacy_config  # link flags of the legacy FORTRAN77 library
 from .footprint import (CellTable, FootprintResult, airmass, footprint, scale_height,  # GRS footprint
                         spacecraft_frame, spacecraft_quaternion)
+from .geodetic import ecef_to_geodetic, geodetic_to_ecef
+from .dsm import DSMError, DSMResult, DSMStatus, DSM_RAY_STATUS, GeodeticDSM
 
 __version__ = "0.1.0"
 
@@ -26,6 +28,7 @@ __all__ = [
     "ray_spheroid_intersection", "read_header", "spheroid_radius", "legacy_paths",
     "CellTable", "FootprintResult", "airmass", "footprint", "scale_height", "spacecraft_frame",
     "spacecraft_quaternion",
+    "GeodeticDSM", "DSMResult", "DSMStatus", "DSMError", "DSM_RAY_STATUS", "ecef_to_geodetic", "geodetic_to_ecef",
 ]
 
 

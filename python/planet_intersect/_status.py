@@ -6,7 +6,8 @@ that the compiled codes agree with it.
 
 from __future__ import annotations
 
-__all__ = ["DEMError", "STAT_MESSAGES", "RAY_STATUS", "RayStatus", "raise_for_stat"]
+__all__ = ["DEMError", "STAT_MESSAGES", "RAY_STATUS", "RayStatus", "raise_for_stat",
+           "DSMError", "DSMStatus", "DSM_RAY_STATUS"]
 
 
 class DEMError(ValueError):
@@ -70,3 +71,45 @@ def raise_for_stat(stat: int, where: str) -> None:
     if stat in (12, 14):
         raise ValueError(f"{where}: {message}")
     raise DEMError(f"{where}: {message} (status {stat})")
+
+
+# ---- geodetic DSM system (Shin & Park): appended, the codes above keep their numbers ----
+
+class DSMError(ValueError):
+    """A DSM array, grid or file is unusable; the message names it and the problem."""
+
+
+class DSMStatus:
+    """Per-ray status codes of ``DSMResult`` (``intersect`` on a ``GeodeticDSM``).
+
+    0 and 3-6 mean what they mean for a DEM; 9-14 are the DSM's own (8 is the DEM's UNRESOLVED)
+    (``fortran/pi_status.f90``: ray_no_data ... ray_step_limit).
+    """
+
+    HIT = 0  #: the ray meets the surface: p, lat, lon, height, distance set
+    HIT_UNCONVERGED = 3  #: hit; the refinement stopped at its iteration limit (best estimate)
+    BAD_DIRECTION = 4  #: line of sight zero or non-finite (rejected by Python before)
+    BAD_POSITION = 5  #: focal point non-finite (rejected by Python before)
+    INSIDE = 6  #: the focal point is at or below the surface (Python raises ValueError)
+    NO_DATA = 9  #: before any hit the ray passes low (h <= H_max) over no-data; event point set
+    LEFT_DSM = 10  #: no hit; the ray is low outside the DSM's area; event point = first such point
+    MISS = 11  #: the ray never comes down to H_max
+    NOT_CONVERGED = 12  #: iterative: no convergence within 100 iterations (last point in p)
+    OSCILLATION = 13  #: iterative: a height repeats, it would iterate forever (last point in p)
+    STEP_LIMIT = 14  #: step or segment limit reached before an answer
+
+
+#: DSM per-ray code -> short description (docs/status-codes.md)
+DSM_RAY_STATUS = {
+    DSMStatus.HIT: "hit",
+    DSMStatus.HIT_UNCONVERGED: "hit, refinement not converged to tolerance",
+    DSMStatus.BAD_DIRECTION: "invalid line of sight",
+    DSMStatus.BAD_POSITION: "invalid focal point",
+    DSMStatus.INSIDE: "focal point at or below the surface",
+    DSMStatus.NO_DATA: "no data where the ray could first hit",
+    DSMStatus.LEFT_DSM: "left the DSM (or never entered it) without hitting",
+    DSMStatus.MISS: "passes above the DSM (never below H_max)",
+    DSMStatus.NOT_CONVERGED: "iterative ray tracing did not converge",
+    DSMStatus.OSCILLATION: "iterative ray tracing oscillates (endless iteration)",
+    DSMStatus.STEP_LIMIT: "step limit reached",
+}

@@ -3,6 +3,7 @@
     planet-intersect demo [--out DIR] [--ppd N] [--pixels N]
     planet-intersect run DEM RAYS [--out DIR] [--step-mode 0|1] [--dem-read-mode 0|1] [--tangent exact|paper]
                          [--method stepping|exact] [--threads N] [--io records|mmap]
+    planet-intersect run DSM.tif|DSM.npz RAYS [--method following|exact|iterative] [--interpolation ...]
     planet-intersect examples olympus|limb [--dem HDR | --mola IMG] [--out DIR]
     planet-intersect import-mola OUT (--radius IMG | --topography IMG --areoid IMG) [--overwrite]
     planet-intersect fetch-mola DEST [--product megr90n000cb|megr90n000eb]
@@ -214,7 +215,6 @@ def intersect_in_chunks(dem, s, l, chunk: int = 200_000, where=None, **kwargs):
     than one. where: (file name, line number of each ray), so that an error about
     ray k names the file's line instead of an index."""
     from . import intersect
-    from .intersect import IntersectResult
 
     n = max(len(s), len(l))
     s = np.broadcast_to(s, (n, 3))
@@ -234,18 +234,20 @@ def intersect_in_chunks(dem, s, l, chunk: int = 200_000, where=None, **kwargs):
         bar(min(a + chunk, n))
     if len(parts) == 1:
         return parts[0]
-    return IntersectResult(**{k: np.concatenate([getattr(p, k) for p in parts]) for k in parts[0].__dataclass_fields__})
+    return type(parts[0])(**{k: np.concatenate([getattr(p, k) for p in parts]) for k in parts[0].__dataclass_fields__})
 
 
 def _run(args) -> int:
     from . import DEM
 
+    if Path(args.dem).suffix.lower() in (".tif", ".tiff", ".npz"):    # a geodetic DSM (Shin & Park)
+        return _run_dsm(args)
     _require("xarray", "xarray", "run (NetCDF output)")
     _require("h5netcdf", "xarray", "run (NetCDF output)")
     dem = DEM.read(args.dem)
     s, l, lines = _read_rays(Path(args.rays))
     res = intersect_in_chunks(dem, s, l, where=(args.rays, lines), step_mode=args.step_mode,
-                              dem_read_mode=args.dem_read_mode, tangent=args.tangent, method=args.method,
+                              dem_read_mode=args.dem_read_mode, tangent=args.tangent, method=args.method or "stepping",
                               threads=args.threads, io=args.io)
     with _run_dir(Path(args.out)) as out:
         write_csv(out / "results.csv", res)
@@ -253,6 +255,26 @@ def _run(args) -> int:
         written = [out / "results.csv", out / "results.nc"]
     print(f"{len(res)} rays: {int(res.hit.sum())} hit, {int((res.status == 1).sum())} limb, "
           f"{int((res.status == 2).sum())} away; wrote {', '.join(map(str, written))}")
+    return 0
+
+
+def _run_dsm(args) -> int:
+    """`run` on a geodetic DSM (GeoTIFF or .npz): rays in its ellipsoid's ECR frame."""
+    from .dsm import DSMStatus, GeodeticDSM
+
+    _require("xarray", "xarray", "run (NetCDF output)")
+    _require("h5netcdf", "xarray", "run (NetCDF output)")
+    dsm = GeodeticDSM.read(args.dem, interpolation=args.interpolation)
+    s, l, lines = _read_rays(Path(args.rays))
+    method = args.method or "following"
+    res = intersect_in_chunks(dsm, s, l, where=(args.rays, lines), method=method, threads=args.threads)
+    with _run_dir(Path(args.out)) as out:
+        write_csv(out / "results.csv", res)
+        res.to_xarray().to_netcdf(out / "results.nc", engine="h5netcdf")
+        written = [out / "results.csv", out / "results.nc"]
+    print(f"{len(res)} rays ({method} over the DSM {args.dem}): {int(res.hit.sum())} hit, "
+          f"{int((res.status == DSMStatus.NO_DATA).sum())} no data, {int((res.status == DSMStatus.LEFT_DSM).sum())} "
+          f"left the DSM, {int((res.status == DSMStatus.MISS).sum())} miss; wrote {', '.join(map(str, written))}")
     return 0
 
 
@@ -520,15 +542,17 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--pixels", type=int, default=101, help="detector pixels per side (default 101, as the paper's Fig. 8)")
     d.set_defaults(func=_demo)
     r = sub.add_parser("run", help="intersect the rays of a text file (sx sy sz lx ly lz per line) with a DEM")
-    r.add_argument("dem", help="DEM as NAME, NAME.hdr or NAME.dem")
+    r.add_argument("dem", help="DEM as NAME, NAME.hdr or NAME.dem; or a geodetic DSM (.tif GeoTIFF, .npz)")
     r.add_argument("rays", help="text file, one ray per line: sx sy sz lx ly lz")
     r.add_argument("--out", default="planet-intersect-output", help="results go to a new run-NNN folder here")
     r.add_argument("--step-mode", type=int, choices=(0, 1), default=1)
     r.add_argument("--dem-read-mode", type=int, choices=(0, 1), default=0)
     r.add_argument("--tangent", choices=("exact", "paper"), default="exact",
                    help="spheroid tangent point: true nearest point (default) or the paper's eqs. 55-58")
-    r.add_argument("--method", choices=("stepping", "exact"), default="stepping",
-                   help="the paper's ray stepping (default) or the exact first hit")
+    r.add_argument("--method", choices=("stepping", "exact", "following", "iterative"), default=None,
+                   help="DEM: stepping (default) or exact; DSM: following (default), exact or iterative")
+    r.add_argument("--interpolation", choices=("bilinear", "nearest"), default=None,
+                   help="DSM surface (default: nearest for a warped projected raster, else bilinear)")
     r.add_argument("--threads", type=int, default=0, help="OpenMP threads (default 0: all cores)")
     r.add_argument("--io", choices=("records", "mmap"), default="records",
                    help="with --dem-read-mode 1: one read per record (default) or a memory map")

@@ -171,8 +171,8 @@ def _check_mode(value, name: str) -> int:
 
 
 def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
-              tangent: str = "exact", threads: int | None = None, method: str = "stepping",
-              io: str = "records") -> IntersectResult:
+              tangent: str = "exact", threads: int | None = None, method: str | None = None,
+              io: str = "records", **dsm_options):
     """Intersect lines of sight with a DEM (the paper's zcalc_planet_intersect).
 
     Parameters
@@ -213,7 +213,10 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
 
     Returns
     -------
-    IntersectResult
+    IntersectResult, or DSMResult for a GeodeticDSM
+
+    A :class:`GeodeticDSM` as ``dem`` is traced by ``dsm.intersect_dsm``
+    (methods "following" (default), "exact", "iterative"; keyword ``outside``).
 
     Raises
     ------
@@ -224,7 +227,19 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
         The DEM file cannot be used (mode 1).
     """
     from . import _core
+    from .dsm import GeodeticDSM, intersect_dsm
 
+    if isinstance(dem, GeodeticDSM):                     # the Shin & Park system (dsm.py)
+        given = {k: v for k, v in (("step_mode", step_mode != 1), ("dem_read_mode", dem_read_mode != 0),
+                                   ("tangent", tangent != "exact"), ("io", io != "records")) if v}
+        if given:
+            raise TypeError(f"intersect: {sorted(given)} apply to a planetary DEM, not a GeodeticDSM")
+        return intersect_dsm(dem, s, l, method="following" if method is None else method, threads=threads,
+                             **dsm_options)
+    if dsm_options:
+        raise TypeError(f"intersect: {sorted(dsm_options)} apply to a GeodeticDSM only")
+    if method is None:
+        method = "stepping"
     if not isinstance(dem, DEM):
         raise TypeError(f"dem must be a planet_intersect.DEM, got {type(dem).__name__}")
     step_mode = _check_mode(step_mode, "step_mode")

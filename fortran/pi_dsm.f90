@@ -1,0 +1,341 @@
+!> Geodetic digital surface model (Shin & Park): heights above the ellipsoid
+!> (a, f) on a regular grid in geodetic latitude and east longitude,
+!> pixel-centre registered, and the height lookup of docs/dsm-contract rules.
+!>
+!> Grid: hgt(j, i) (Fortran order; Python's heights[i, j]) is the height at
+!> latitude lat0 + i*dlat, longitude lon0 + j*dlon (0-based i, j; radians;
+!> dlat < 0 for north-up rows, dlon > 0). NaN marks no-data (Python maps a
+!> `nodata` value to NaN before the call). Longitudes are modulo 2 pi, taken
+!> relative to the grid's centre longitude, so an extent may cross the
+!> antimeridian.
+!>
+!> interp_bilinear: bilinear in (lat, lon) between the four surrounding
+!> centres, defined on the closed rectangle of centres. interp_nearest: flat
+!> columns over the cells, the larger height on a shared boundary (walls are
+!> solid), defined on the rectangle of outer cell edges.
+!>
+!> The max-pyramid (built by Python, dsm.py) holds for level k >= 1 the
+!> maximum of each 2^k x 2^k block of hgt with no-data as +huge; it gives a
+!> bound of the surface over any index box in O(1) (pi_dsm_exact).
+module pi_dsm
+  use pi_kinds, only: dp
+  use pi_vector, only: pi
+  use, intrinsic :: ieee_arithmetic, only: ieee_is_nan
+  implicit none
+  private
+
+  public :: dsm_t, dsm_attach, dsm_height, dsm_grid_uv, dsm_box_bound, dsm_cell_metres
+  public :: interp_bilinear, interp_nearest, pt_ok, pt_outside, pt_nodata
+
+  !> interpolation codes
+  integer, parameter :: interp_bilinear = 0, interp_nearest = 1
+  !> classification of a point by dsm_height: over data, outside the DSM, over no-data
+  integer, parameter :: pt_ok = 0, pt_outside = 1, pt_nodata = 2
+
+  !> A DSM grid attached to caller-owned arrays (no copy, no state).
+  type :: dsm_t
+    !> heights (ncols, nrows), units of a; NaN = no data
+    real(dp), pointer, contiguous :: hgt(:, :) => null()
+    !> max-pyramid levels 1..nlev packed; meta(:, k) = rows, cols, offset (0-based)
+    real(dp), pointer, contiguous :: pyr(:) => null()
+    integer, pointer, contiguous :: meta(:, :) => null()
+    integer :: ncols = 0, nrows = 0, nlev = 0, interp = interp_bilinear
+    !> first centre latitude/longitude, spacings (radians); centre longitude of the grid
+    real(dp) :: lat0 = 0, lon0 = 0, dlat = 1, dlon = 1, lonc = 0
+    !> ellipsoid
+    real(dp) :: a = 1, f = 0, b = 1, e2 = 0
+    !> largest and smallest data height (H_max may be raised by the caller)
+    real(dp) :: hmax = 0, hmin = 0
+    !> true when the columns cover 360 degrees (longitude boxes then wrap)
+    logical :: global = .false.
+  end type dsm_t
+
+contains
+
+  !> Attach a grid and its pyramid to `dsm` (pointers, no copy).
+  !>
+  !> Inputs: hgt(ncols, nrows) heights; lat0, lon0, dlat, dlon (radians);
+  !> a, f ellipsoid; interp; hmax, hmin; pyr, meta (may be size 1 / 1 level
+  !> when the caller does not use dsm_box_max).
+  subroutine dsm_attach(hgt, lat0, lon0, dlat, dlon, a, f, interp, hmax, hmin, pyr, meta, dsm)
+    real(dp), intent(in), target, contiguous :: hgt(:, :), pyr(:)
+    integer, intent(in), target, contiguous :: meta(:, :)
+    real(dp), intent(in) :: lat0, lon0, dlat, dlon, a, f, hmax, hmin
+    integer, intent(in) :: interp
+    type(dsm_t), intent(out) :: dsm
+    dsm%hgt => hgt
+    dsm%pyr => pyr
+    dsm%meta => meta
+    dsm%ncols = size(hgt, 1)
+    dsm%nrows = size(hgt, 2)
+    dsm%nlev = size(meta, 2)
+    dsm%lat0 = lat0
+    dsm%lon0 = lon0
+    dsm%dlat = dlat
+    dsm%dlon = dlon
+    dsm%lonc = lon0 + 0.5_dp * (dsm%ncols - 1) * dlon
+    dsm%a = a
+    dsm%f = f
+    dsm%b = a * (1.0_dp - f)
+    dsm%e2 = f * (2.0_dp - f)
+    dsm%interp = interp
+    dsm%hmax = hmax
+    dsm%hmin = hmin
+    dsm%global = dsm%ncols * dlon >= 2.0_dp * pi * (1.0_dp - 1.0e-12_dp)
+  end subroutine dsm_attach
+
+  !> Continuous grid coordinates of (lat, lon): u = column, v = row (0-based,
+  !> centre of cell j at u = j). Longitude is wrapped to within pi of the grid's
+  !> centre longitude.
+  pure subroutine dsm_grid_uv(dsm, lat, lon, u, v)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: lat, lon
+    real(dp), intent(out) :: u, v
+    real(dp) :: dl
+    dl = modulo(lon - dsm%lonc + pi, 2.0_dp * pi) - pi
+    u = (dl + (dsm%lonc - dsm%lon0)) / dsm%dlon
+    v = (lat - dsm%lat0) / dsm%dlat
+  end subroutine dsm_grid_uv
+
+  !> The DSM surface height H at (lat, lon) (radians) per the contract.
+  !>
+  !> Output hs: H (units of a), NaN unless code = pt_ok; code: pt_ok,
+  !> pt_outside (not over the defined area) or pt_nodata.
+  pure subroutine dsm_height(dsm, lat, lon, hs, code)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: lat, lon
+    real(dp), intent(out) :: hs
+    integer, intent(out) :: code
+    real(dp) :: u, v
+    call dsm_grid_uv(dsm, lat, lon, u, v)
+    call height_uv(dsm, u, v, hs, code)
+  end subroutine dsm_height
+
+  !> dsm_height at grid coordinates (u, v).
+  pure subroutine height_uv(dsm, u, v, hs, code)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: u, v
+    real(dp), intent(out) :: hs
+    integer, intent(out) :: code
+    integer :: i, j, i0, i1, j0, j1, ii, jj
+    real(dp) :: fu, fv, h00, h01, h10, h11, tu, tv, w
+    hs = ieee_nan()
+    code = pt_outside
+    if (dsm%interp == interp_bilinear) then
+      if (.not. (v >= 0.0_dp .and. v <= dsm%nrows - 1 .and. u >= 0.0_dp .and. u <= dsm%ncols - 1)) return
+      i = min(int(v), dsm%nrows - 2)
+      j = min(int(u), dsm%ncols - 2)
+      fv = v - i
+      fu = u - j
+      h00 = dsm%hgt(j + 1, i + 1)
+      h01 = dsm%hgt(j + 2, i + 1)
+      h10 = dsm%hgt(j + 1, i + 2)
+      h11 = dsm%hgt(j + 2, i + 2)
+      code = pt_nodata
+      if (ieee_is_nan(h00) .or. ieee_is_nan(h01) .or. ieee_is_nan(h10) .or. ieee_is_nan(h11)) return
+      hs = (1.0_dp - fv) * ((1.0_dp - fu) * h00 + fu * h01) + fv * ((1.0_dp - fu) * h10 + fu * h11)
+      code = pt_ok
+    else
+      tv = v + 0.5_dp
+      tu = u + 0.5_dp
+      if (dsm%global) then
+        tu = modulo(tu, real(dsm%ncols, dp))
+      end if
+      if (.not. (tv >= 0.0_dp .and. tv <= dsm%nrows .and. tu >= 0.0_dp .and. tu <= dsm%ncols)) return
+      i1 = min(int(tv), dsm%nrows - 1)
+      i0 = i1
+      if (real(i1, dp) == tv .and. i1 >= 1) i0 = i1 - 1          ! on a row boundary: both cells
+      if (int(tv) == dsm%nrows) i0 = dsm%nrows - 1
+      j1 = min(int(tu), dsm%ncols - 1)
+      j0 = j1
+      if (real(j1, dp) == tu .and. j1 >= 1) j0 = j1 - 1
+      if (int(tu) == dsm%ncols) j0 = dsm%ncols - 1
+      code = pt_nodata
+      hs = -huge(1.0_dp)
+      do ii = i0, i1
+        do jj = j0, j1
+          w = dsm%hgt(jj + 1, ii + 1)
+          if (ieee_is_nan(w)) then
+            hs = ieee_nan()
+            return
+          end if
+          hs = max(hs, w)
+        end do
+      end do
+      if (dsm%global .and. j0 == j1 .and. j0 == 0 .and. tu == 0.0_dp) then   ! seam: cell ncols-1 too
+        w = dsm%hgt(dsm%ncols, i0 + 1)
+        if (ieee_is_nan(w)) then
+          hs = ieee_nan()
+          return
+        end if
+        hs = max(hs, w)
+      end if
+      code = pt_ok
+    end if
+  end subroutine height_uv
+
+  !> Upper bound hb of the surface over the part of the grid-coordinate box
+  !> [u0, u1] x [v0, v1] that lies over the DSM's defined area (+huge when that
+  !> part touches no-data, -huge when it is empty), and out = .true. when some
+  !> of the box is outside the defined area. On a global DSM (columns covering
+  !> 360 degrees) the column range wraps.
+  pure subroutine dsm_box_bound(dsm, u0, u1, v0, v1, hb, out)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: u0, u1, v0, v1
+    real(dp), intent(out) :: hb
+    logical, intent(out) :: out
+    integer :: i0, i1, j0, j1, w
+    real(dp) :: e
+    hb = huge(1.0_dp)
+    out = .true.
+    if (.not. (u1 >= u0 .and. v1 >= v0)) return
+    if (dsm%interp == interp_bilinear) then
+      out = v0 < 0.0_dp .or. v1 > dsm%nrows - 1 .or. u0 < 0.0_dp .or. u1 > dsm%ncols - 1
+      hb = -huge(1.0_dp)
+      if (v1 < 0.0_dp .or. v0 > dsm%nrows - 1 .or. u1 < 0.0_dp .or. u0 > dsm%ncols - 1) return
+      i0 = int(max(v0, 0.0_dp))
+      i1 = min(ceiling(min(v1, real(dsm%nrows - 1, dp))), dsm%nrows - 1)
+      j0 = int(max(u0, 0.0_dp))
+      j1 = min(ceiling(min(u1, real(dsm%ncols - 1, dp))), dsm%ncols - 1)
+      if (i1 - i0 <= 2 .and. j1 - j0 <= 2) then
+        ! a few cells: the bilinear surface's own maximum over the box (a
+        ! bilinear function on a rectangle peaks at one of its corners)
+        hb = bilinear_box_max(dsm, max(u0, 0.0_dp), min(u1, real(dsm%ncols - 1, dp)), &
+                              max(v0, 0.0_dp), min(v1, real(dsm%nrows - 1, dp)), i0, i1, j0, j1)
+      else
+        hb = range_max(dsm, i0, i1, j0, j1)
+      end if
+    else
+      e = 0.5_dp
+      out = v0 < -e .or. v1 > dsm%nrows - e
+      hb = -huge(1.0_dp)
+      if (v1 < -e .or. v0 > dsm%nrows - e) return
+      i0 = max(ceiling(v0 - e), 0)
+      i1 = min(floor(v1 + e), dsm%nrows - 1)
+      if (dsm%global) then
+        if (u1 - u0 >= dsm%ncols - 2) then
+          hb = range_max(dsm, i0, i1, 0, dsm%ncols - 1)
+          return
+        end if
+        w = floor((u0 + e) / dsm%ncols)                        ! shift into [-0.5, ncols - 0.5)
+        j0 = ceiling(u0 - w * dsm%ncols - e)
+        j1 = floor(u1 - w * dsm%ncols + e)
+        if (j0 < 0) then
+          hb = max(range_max(dsm, i0, i1, 0, j1), range_max(dsm, i0, i1, dsm%ncols + j0, dsm%ncols - 1))
+        else if (j1 > dsm%ncols - 1) then
+          hb = max(range_max(dsm, i0, i1, j0, dsm%ncols - 1), range_max(dsm, i0, i1, 0, j1 - dsm%ncols))
+        else
+          hb = range_max(dsm, i0, i1, j0, j1)
+        end if
+        return
+      end if
+      out = out .or. u0 < -e .or. u1 > dsm%ncols - e
+      if (u1 < -e .or. u0 > dsm%ncols - e) return
+      j0 = max(ceiling(u0 - e), 0)
+      j1 = min(floor(u1 + e), dsm%ncols - 1)
+      hb = range_max(dsm, i0, i1, j0, j1)
+    end if
+  end subroutine dsm_box_bound
+
+  !> Maximum of the bilinear surface over [u0, u1] x [v0, v1] (inside the grid),
+  !> whose node range is rows i0..i1, columns j0..j1: per cell, the largest of
+  !> the surface at the corners of the box's part in that cell (+huge on no-data).
+  pure function bilinear_box_max(dsm, u0, u1, v0, v1, i0, i1, j0, j1) result(hb)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: u0, u1, v0, v1
+    integer, intent(in) :: i0, i1, j0, j1
+    real(dp) :: hb, h00, h01, h10, h11, a0, a1, b0, b1, fu, fv
+    integer :: ci, cj, ka, kb
+    hb = -huge(1.0_dp)
+    do ci = i0, max(i0, i1 - 1)
+      do cj = j0, max(j0, j1 - 1)
+        if (ci + 1 > dsm%nrows - 1 .or. cj + 1 > dsm%ncols - 1) then   ! a degenerate box on the last node line
+          h00 = dsm%hgt(cj + 1, ci + 1)
+          if (ieee_is_nan(h00)) then
+            hb = huge(1.0_dp)
+            return
+          end if
+          hb = max(hb, range_max(dsm, ci, min(ci + 1, dsm%nrows - 1), cj, min(cj + 1, dsm%ncols - 1)))
+          cycle
+        end if
+        h00 = dsm%hgt(cj + 1, ci + 1)
+        h01 = dsm%hgt(cj + 2, ci + 1)
+        h10 = dsm%hgt(cj + 1, ci + 2)
+        h11 = dsm%hgt(cj + 2, ci + 2)
+        if (ieee_is_nan(h00) .or. ieee_is_nan(h01) .or. ieee_is_nan(h10) .or. ieee_is_nan(h11)) then
+          hb = huge(1.0_dp)
+          return
+        end if
+        a0 = max(v0, real(ci, dp)) - ci
+        a1 = min(v1, real(ci + 1, dp)) - ci
+        b0 = max(u0, real(cj, dp)) - cj
+        b1 = min(u1, real(cj + 1, dp)) - cj
+        if (a1 < a0 .or. b1 < b0) cycle
+        do ka = 0, 1
+          fv = merge(a0, a1, ka == 0)
+          do kb = 0, 1
+            fu = merge(b0, b1, kb == 0)
+            hb = max(hb, (1.0_dp - fv) * ((1.0_dp - fu) * h00 + fu * h01) + fv * ((1.0_dp - fu) * h10 + fu * h11))
+          end do
+        end do
+      end do
+    end do
+    ! rounding of the interpolation: never below the computed values by more than a few ulps
+    hb = hb + 4.0_dp * spacing(max(abs(hb), 1.0_dp))
+  end function bilinear_box_max
+
+  !> Largest height over rows i0..i1, columns j0..j1 (0-based, inclusive,
+  !> inside the grid), no-data as +huge: at most 2 x 2 blocks of one pyramid level.
+  pure function range_max(dsm, i0, i1, j0, j1) result(hb)
+    type(dsm_t), intent(in) :: dsm
+    integer, intent(in) :: i0, i1, j0, j1
+    real(dp) :: hb, w
+    integer :: span, k, bi, bj, off, nr, nc
+    span = max(i1 - i0, j1 - j0)
+    hb = -huge(1.0_dp)
+    if (span <= 1) then                                ! at most 2 x 2 cells: read them
+      do bi = i0, i1
+        do bj = j0, j1
+          w = dsm%hgt(bj + 1, bi + 1)
+          if (ieee_is_nan(w)) then
+            hb = huge(1.0_dp)
+            return
+          end if
+          hb = max(hb, w)
+        end do
+      end do
+      return
+    end if
+    k = bit_size(span) - leadz(span)                   ! 2^k > span: the range touches <= 2 blocks per axis
+    k = min(k, dsm%nlev)
+    nr = dsm%meta(1, k)
+    nc = dsm%meta(2, k)
+    off = dsm%meta(3, k)
+    do bi = ishft(i0, -k), min(ishft(i1, -k), nr - 1)
+      do bj = ishft(j0, -k), min(ishft(j1, -k), nc - 1)
+        hb = max(hb, dsm%pyr(off + bi * nc + bj + 1))
+      end do
+    end do
+  end function range_max
+
+  !> Cell sides in metres (units of a) at geodetic latitude lat: the meridian
+  !> arc of |dlat| and the parallel arc of dlon on the ellipsoid.
+  pure subroutine dsm_cell_metres(dsm, lat, dy, dx)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: lat
+    real(dp), intent(out) :: dy, dx
+    real(dp) :: w, nn, mm
+    w = 1.0_dp - dsm%e2 * sin(lat)**2
+    nn = dsm%a / sqrt(w)
+    mm = dsm%a * (1.0_dp - dsm%e2) / (w * sqrt(w))
+    dy = mm * abs(dsm%dlat)
+    dx = nn * cos(lat) * dsm%dlon
+  end subroutine dsm_cell_metres
+
+  pure function ieee_nan() result(x)
+    use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
+    real(dp) :: x
+    x = ieee_value(1.0_dp, ieee_quiet_nan)
+  end function ieee_nan
+
+end module pi_dsm

@@ -1,0 +1,435 @@
+!> Exact first hit of a ray on a geodetic DSM (method "exact"), and the
+!> per-ray driver of all three DSM methods (OpenMP over rays).
+!>
+!> The answer is the contract's (docs/shin-park-notes.md, "exact mode"): the
+!> smallest r >= 0 where P(r) is over the DSM's defined area and its exact
+!> geodetic height h(r) <= H(lat, lon), to refine_tol along the ray, never
+!> late, never missing an entry longer than refine_tol; or the first low
+!> (h <= H_max) point over no-data / outside the area.
+!>
+!> Algorithm:
+!>  1. h(r) is convex along the line (signed distance to a convex body). The
+!>     search interval is [r_in, r_end]: r_in the first crossing of H_max,
+!>     r_end the first crossing of H_min (after which any point over data is a
+!>     hit), else the last crossing of H_max. Newton from the outside side.
+!>  2. Depth-first subdivision of [r_in, r_end] in ray order. A segment
+!>     [ra, rb] gets a lower bound of h from the tangents at both ends
+!>     (convexity), a longitude range from its ends (longitude is monotone
+!>     along a line), and a latitude range from the ends widened by the
+!>     Lipschitz bound |dlat/dr| <= (|l.north| + L kappa) / (M_min + h_low).
+!>     The max-pyramid bounds the surface over that box (no-data and outside
+!>     as +huge); a segment whose lowest height is above the bound is skipped.
+!>  3. A segment within one "nearest" cell is solved by Newton on the convex
+!>     h(r) - H_cell from its start (monotone, never past the first root).
+!>     Otherwise segments are halved until shorter than refine_tol, where the
+!>     end point is classified (hit, no-data, outside or still above).
+!> Every loop is bounded (segment limit exact_maxseg, stack depth exact_depth).
+module pi_dsm_exact
+  use pi_kinds, only: dp
+  use pi_status
+  use pi_vector, only: pi
+  use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, pt_ok, pt_outside, &
+                    pt_nodata
+  use pi_follow, only: dsm_ray_t, follow_ray, iterate_ray, ray_geo, level_crossing, level_crossing_back, &
+                       set_hit, set_event, refine_tol
+  use pi_geodetic, only: ecr_to_geodetic
+  use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan, ieee_is_finite, ieee_is_nan
+  !$ use omp_lib, only: omp_get_max_threads
+  implicit none
+  private
+
+  public :: exact_ray, dsm_trace_packed, dsm_method_following, dsm_method_exact, dsm_method_iterative, &
+            exact_maxseg
+
+  !> method codes of dsm_trace_packed
+  integer, parameter :: dsm_method_following = 0, dsm_method_exact = 1, dsm_method_iterative = 2
+  !> segment limit per ray (then ray_step_limit) and subdivision stack depth
+  integer, parameter :: exact_maxseg = 200000, exact_depth = 128
+
+  !> a point of the ray with what the bounds need
+  type :: rpt_t
+    real(dp) :: r, lat, lon, h, dh, u, v, ln
+  end type rpt_t
+
+contains
+
+  !> Evaluate the ray point at r: exact geodetic coordinates, dh/dr, grid
+  !> coordinates and l . north.
+  pure subroutine eval_pt(dsm, s, l, r, q)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3), r
+    type(rpt_t), intent(out) :: q
+    real(dp) :: p(3), nx, ny, nz, cphi
+    p = s + r * l
+    call ecr_to_geodetic(p(1), p(2), p(3), dsm%a, dsm%f, q%lat, q%lon, q%h, nx, ny, nz)
+    q%r = r
+    q%dh = l(1) * nx + l(2) * ny + l(3) * nz
+    call dsm_grid_uv(dsm, q%lat, q%lon, q%u, q%v)
+    ! north unit vector (-sin lat cos lon, -sin lat sin lon, cos lat) from the normal
+    cphi = sqrt(nx * nx + ny * ny)
+    if (cphi > 0.0_dp) then
+      q%ln = (-nz * (l(1) * nx + l(2) * ny)) / cphi + cphi * l(3)
+    else
+      q%ln = sqrt(l(1)**2 + l(2)**2)
+    end if
+  end subroutine eval_pt
+
+  !> Bounds for the segment [pa, pb]: hlow <= h on it (convexity, the end
+  !> tangents), hb >= the surface over the part of its (lat, lon) box inside the
+  !> DSM (+huge: unknown or no-data), out: the box reaches outside the DSM;
+  !> cell >= 0 when the box lies within one "nearest" cell (its height in hb);
+  !> rsplit > 0: the estimated crossing of the one cell boundary the box straddles.
+  pure subroutine segment_bounds(dsm, s, l, pa, pb, hlow, hb, out, cell, rsplit)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3)
+    type(rpt_t), intent(in) :: pa, pb
+    real(dp), intent(out) :: hlow, hb, rsplit
+    logical, intent(out) :: out
+    integer, intent(out) :: cell
+    integer :: ci0, ci1, cj0, cj1
+    real(dp) :: t, ub, rb0
+    real(dp) :: rstar, mmin, den, rho, kap, keff, llen, lat_lo, lat_hi, w, v0, v1, u0, u1, du
+    llen = pb%r - pa%r
+    if (pa%dh >= 0.0_dp) then
+      hlow = pa%h
+    else if (pb%dh <= 0.0_dp) then
+      hlow = pb%h
+    else
+      rstar = (pb%h - pa%h + pa%dh * pa%r - pb%dh * pb%r) / (pa%dh - pb%dh)
+      rstar = min(max(rstar, pa%r), pb%r)
+      hlow = min(pa%h, pb%h, pa%h + pa%dh * (rstar - pa%r))
+    end if
+    hlow = hlow - 1.0e-9_dp * (1.0_dp + abs(hlow))
+    hb = huge(1.0_dp)
+    out = .true.
+    cell = -1
+    rsplit = 0.0_dp
+    mmin = dsm%a * (1.0_dp - dsm%e2)                      ! smallest meridian radius of curvature
+    den = mmin + min(hlow, 0.0_dp)
+    if (.not. (den > 0.5_dp * mmin)) return
+    rho = axis_distance(s, l, pa%r, pb%r)
+    if (.not. (rho > 1.0e-9_dp * dsm%a)) return
+    ! |dlat/dr| = |l . north| / (M + h); l . north changes by at most kap per unit r
+    kap = 1.0_dp / den + 1.0_dp / rho
+    keff = min((abs(pa%ln) + llen * kap) / den, 1.0_dp / den)
+    lat_lo = min(pa%lat, pb%lat, 0.5_dp * (pa%lat + pb%lat - keff * llen))
+    lat_hi = max(pa%lat, pb%lat, 0.5_dp * (pa%lat + pb%lat + keff * llen))
+    w = 1.0e-12_dp * (1.0_dp + abs(lat_hi))
+    v0 = (lat_lo - w - dsm%lat0) / dsm%dlat
+    v1 = (lat_hi + w - dsm%lat0) / dsm%dlat
+    if (v0 > v1) then
+      w = v0; v0 = v1; v1 = w
+    end if
+    du = modulo(pb%lon - pa%lon + pi, 2.0_dp * pi) - pi
+    if (.not. (abs(du) < 0.5_dp * pi)) return             ! longitude is monotone: a short sweep only
+    u0 = min(pa%u, pa%u + du / dsm%dlon) - 1.0e-9_dp
+    u1 = max(pa%u, pa%u + du / dsm%dlon) + 1.0e-9_dp
+    call dsm_box_bound(dsm, u0, u1, v0, v1, hb, out)
+    if (dsm%interp == interp_nearest .and. .not. out .and. .not. dsm%global .and. hb < huge(1.0_dp)) then
+      ci0 = ceiling(v0 - 0.5_dp); ci1 = floor(v1 + 0.5_dp)
+      cj0 = ceiling(u0 - 0.5_dp); cj1 = floor(u1 + 0.5_dp)
+      if (ci0 == ci1 .and. cj0 == cj1) then
+        cell = 1
+      else if (ci1 - ci0 + cj1 - cj0 == 1) then
+        ! the box straddles one cell boundary (a wall): suggest splitting just
+        ! before the crossing estimated by linear interpolation of u or v, so
+        ! that the part before it is one cell (where the split falls does not
+        ! affect correctness, only how soon the search gets there)
+        if (cj1 > cj0) then
+          ub = cj0 + 0.5_dp
+          rb0 = pa%u + du / dsm%dlon
+          t = (ub - pa%u) / (rb0 - pa%u)
+        else
+          ub = ci0 + 0.5_dp
+          t = (ub - pa%v) / (pb%v - pa%v)
+        end if
+        if (t > 0.0_dp .and. t < 1.0_dp) rsplit = pa%r + t * llen
+      end if
+    end if
+  end subroutine segment_bounds
+
+  !> Exact first hit for one ray (l unit, s above the surface).
+  pure subroutine exact_ray(dsm, s, l, res)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3)
+    type(dsm_ray_t), intent(inout) :: res
+    type(rpt_t) :: pa, pb, pm, p_in, p_end, stack(exact_depth)
+    real(dp) :: r_in, r_end, r_far, hs, lat, lon, h, dh, hlow, hb, r, g, dr, hc, rsplit, rm
+    logical :: found, out
+    integer :: code, nst, nseg, it, cell
+    res%nsteps = 0
+    ! ---- 1. the search interval
+    call ray_geo(dsm, s, l, 0.0_dp, lat, lon, h, dh)
+    res%nsteps = 1
+    if (h <= dsm%hmax) then
+      r_in = 0.0_dp
+    else
+      call level_crossing(dsm, s, l, 0.0_dp, dsm%hmax, r_in, found, res%nsteps)
+      if (.not. found) then
+        res%status = ray_dsm_miss
+        return
+      end if
+    end if
+    call level_crossing(dsm, s, l, r_in, dsm%hmin, r_end, found, res%nsteps)
+    if (.not. found) then
+      ! beyond the sphere |P| = a + H_max + 1 nothing is below H_max
+      r_far = far_distance(s, l, dsm%a + max(dsm%hmax, 0.0_dp) + 1.0_dp)
+      call level_crossing_back(dsm, s, l, max(r_far, r_in), dsm%hmax, r_end, found, res%nsteps)
+      if (.not. found) r_end = r_in
+      r_end = max(r_end, r_in)
+    end if
+    call eval_pt(dsm, s, l, r_in, p_in)
+    call eval_pt(dsm, s, l, r_end, p_end)
+    res%nsteps = res%nsteps + 2
+    ! ---- the start point itself
+    call dsm_height(dsm, p_in%lat, p_in%lon, hs, code)
+    if (code == pt_nodata) then
+      call set_event(dsm, s, l, r_in, ray_no_data, res)
+      return
+    end if
+    if (code == pt_ok .and. p_in%h <= hs) then
+      call set_hit(dsm, s, l, r_in, ray_hit, res)
+      return
+    end if
+    ! ---- 2. depth-first subdivision for the first hit or no-data point
+    pa = p_in
+    pb = p_end
+    nst = 0
+    do nseg = 1, exact_maxseg
+      call segment_bounds(dsm, s, l, pa, pb, hlow, hb, out, cell, rsplit)
+      if (hlow > hb) then                                 ! nothing to meet in this segment
+        call next_segment(pa, pb, stack, nst)
+        if (nst < 0) exit
+        cycle
+      end if
+      if (cell >= 0) then                                 ! ---- 3a. one nearest cell: Newton on h - H_cell
+        hc = hb
+        r = pa%r
+        g = pa%h - hc
+        dh = pa%dh
+        found = .false.
+        do it = 1, 100
+          if (g <= 0.0_dp) then
+            found = .true.
+            exit
+          end if
+          if (.not. (dh < 0.0_dp)) exit                   ! rising: convex h never comes back down
+          dr = -g / dh
+          r = r + dr
+          if (r > pb%r) exit                              ! the first root lies beyond the segment
+          if (dr <= 1.0e-9_dp) then
+            found = .true.
+            exit
+          end if
+          call ray_geo(dsm, s, l, r, lat, lon, h, dh)
+          res%nsteps = res%nsteps + 1
+          g = h - hc
+        end do
+        if (found) then
+          call set_hit(dsm, s, l, r, ray_hit, res)
+          return
+        end if
+        if (it <= 100) then
+          call next_segment(pa, pb, stack, nst)
+          if (nst < 0) exit
+          cycle
+        end if
+      end if
+      if (pb%r - pa%r <= refine_tol) then                 ! ---- 3b. a short segment: classify its end
+        call dsm_height(dsm, pb%lat, pb%lon, hs, code)
+        if (code == pt_nodata) then
+          call set_event(dsm, s, l, pb%r, ray_no_data, res)
+          return
+        else if (code == pt_ok .and. pb%h <= hs) then
+          call set_hit(dsm, s, l, pb%r, ray_hit, res)
+          return
+        end if
+        call next_segment(pa, pb, stack, nst)
+        if (nst < 0) exit
+        cycle
+      end if
+      if (nst >= exact_depth) then
+        res%status = ray_step_limit
+        return
+      end if
+      ! split just before (or, from the boundary, just after) a wall crossing, else at the middle
+      rm = 0.5_dp * (pa%r + pb%r)
+      if (rsplit > 0.0_dp) then
+        if (rsplit - 0.25_dp * refine_tol > pa%r + 0.125_dp * refine_tol) then
+          rm = rsplit - 0.25_dp * refine_tol
+        else if (rsplit + 0.25_dp * refine_tol < pb%r - 0.125_dp * refine_tol) then
+          rm = rsplit + 0.25_dp * refine_tol
+        end if
+      end if
+      call eval_pt(dsm, s, l, rm, pm)
+      res%nsteps = res%nsteps + 1
+      nst = nst + 1
+      stack(nst) = pb
+      pb = pm
+    end do
+    if (nst >= 0) then
+      res%status = ray_step_limit
+      return
+    end if
+    ! ---- the interval is clear up to r_end: the end point decides (h = H_min there)
+    call dsm_height(dsm, p_end%lat, p_end%lon, hs, code)
+    if (code == pt_ok .and. p_end%h <= hs + 1.0e-9_dp * (1.0_dp + abs(hs))) then
+      call set_hit(dsm, s, l, r_end, ray_hit, res)
+      return
+    end if
+    ! ---- 4. no hit, no no-data: the first low point outside the DSM, if any
+    pa = p_in
+    pb = p_end
+    nst = 0
+    do nseg = 1, exact_maxseg
+      call segment_bounds(dsm, s, l, pa, pb, hlow, hb, out, cell, rsplit)
+      rsplit = 0.0_dp
+      if (pa%r == r_in) then
+        call dsm_height(dsm, pa%lat, pa%lon, hs, code)
+        if (code == pt_outside) then
+          call set_event(dsm, s, l, pa%r, ray_left_dsm, res)
+          return
+        end if
+      end if
+      if (.not. out) then
+        call next_segment(pa, pb, stack, nst)
+        if (nst < 0) exit
+        cycle
+      end if
+      if (pb%r - pa%r <= refine_tol) then
+        call dsm_height(dsm, pb%lat, pb%lon, hs, code)
+        if (code == pt_outside) then
+          call set_event(dsm, s, l, pb%r, ray_left_dsm, res)
+          return
+        end if
+        call next_segment(pa, pb, stack, nst)
+        if (nst < 0) exit
+        cycle
+      end if
+      if (nst >= exact_depth) exit
+      call eval_pt(dsm, s, l, 0.5_dp * (pa%r + pb%r), pm)
+      res%nsteps = res%nsteps + 1
+      nst = nst + 1
+      stack(nst) = pb
+      pb = pm
+    end do
+    if (nst >= 0) then
+      res%status = ray_step_limit
+    else
+      res%status = ray_dsm_miss
+    end if
+  end subroutine exact_ray
+
+  !> Move on to the next pending segment [pb, top of the stack]; nst = -1
+  !> when none is left.
+  pure subroutine next_segment(pa, pb, stack, nst)
+    type(rpt_t), intent(inout) :: pa, pb
+    type(rpt_t), intent(in) :: stack(:)
+    integer, intent(inout) :: nst
+    pa = pb
+    if (nst == 0) then
+      nst = -1
+      return
+    end if
+    pb = stack(nst)
+    nst = nst - 1
+  end subroutine next_segment
+
+  !> Smallest distance from the z axis of the points s + r l, r in [r0, r1].
+  pure function axis_distance(s, l, r0, r1) result(d)
+    real(dp), intent(in) :: s(3), l(3), r0, r1
+    real(dp) :: d, ll, rr
+    ll = l(1)**2 + l(2)**2
+    if (ll > 0.0_dp) then
+      rr = -(s(1) * l(1) + s(2) * l(2)) / ll
+    else
+      rr = r0
+    end if
+    rr = min(max(rr, r0), r1)
+    d = sqrt((s(1) + rr * l(1))**2 + (s(2) + rr * l(2))**2)
+  end function axis_distance
+
+  !> Distance along the ray to where it leaves the sphere of radius rad (0 if never inside).
+  pure function far_distance(s, l, rad) result(r)
+    real(dp), intent(in) :: s(3), l(3), rad
+    real(dp) :: r, b, c, disc
+    b = dot_product(s, l)
+    c = dot_product(s, s) - rad * rad
+    disc = b * b - c
+    r = 0.0_dp
+    if (disc > 0.0_dp) r = max(0.0_dp, -b + sqrt(disc))
+  end function far_distance
+
+  !> Trace n rays with one of the three methods; OpenMP over rays with a
+  !> num_threads clause (threads <= 0: all), no shared mutable state, so the
+  !> results are bit-identical for any thread count.
+  !>
+  !> Inputs: dsm; s(3, n), l(3, n) ECR (l any non-zero length); method.
+  !> Outputs: p(3, n) hit points, q(3, n) event points; scal(10, n) = lat, lon,
+  !> h, H, r, incidence (hits; radians), qlat, qlon, qh, qr (events), NaN
+  !> where not set; status(n) ray_* codes; nsteps(n). stat: stat_bad_mode for
+  !> an unknown method.
+  subroutine dsm_trace_packed(dsm, n, s, l, method, threads, p, q, scal, status, nsteps, stat)
+    type(dsm_t), intent(in) :: dsm
+    integer, intent(in) :: n, method, threads
+    real(dp), intent(in) :: s(3, n), l(3, n)
+    real(dp), intent(out) :: p(3, n), q(3, n), scal(10, n)
+    integer, intent(out) :: status(n), nsteps(n), stat
+    integer :: k, nt
+    real(dp) :: nan
+    nan = ieee_value(1.0_dp, ieee_quiet_nan)
+    p = nan; q = nan; scal = nan; status = ray_bad_direction; nsteps = 0
+    stat = stat_ok
+    if (method < 0 .or. method > 2) then
+      stat = stat_bad_mode
+      return
+    end if
+    nt = 1
+    !$ nt = omp_get_max_threads()
+    if (threads > 0) nt = threads
+    !$omp parallel do schedule(dynamic, 64) num_threads(nt) default(shared) private(k)
+    do k = 1, n
+      call trace_one(k)
+    end do
+    !$omp end parallel do
+
+  contains
+
+    !> One ray: checks, then the method; results into column k.
+    subroutine trace_one(k)
+      integer, intent(in) :: k
+      type(dsm_ray_t) :: res
+      real(dp) :: ln, lu(3), lat, lon, h, hs, dh
+      integer :: code
+      res%p = nan; res%lat = nan; res%lon = nan; res%h = nan; res%hs = nan; res%r = nan
+      res%incidence = nan; res%q = nan; res%qlat = nan; res%qlon = nan; res%qh = nan; res%qr = nan
+      res%nsteps = 0
+      ln = norm2(l(:, k))
+      if (.not. (ieee_is_finite(ln) .and. ln > 0.0_dp)) then
+        res%status = ray_bad_direction
+      else if (.not. all(ieee_is_finite(s(:, k)))) then
+        res%status = ray_bad_position
+      else
+        lu = l(:, k) / ln
+        call ray_geo(dsm, s(:, k), lu, 0.0_dp, lat, lon, h, dh)
+        call dsm_height(dsm, lat, lon, hs, code)
+        if (code == pt_ok .and. h <= hs) then
+          res%status = ray_inside
+        else if (method == dsm_method_following) then
+          call follow_ray(dsm, s(:, k), lu, res)
+        else if (method == dsm_method_exact) then
+          call exact_ray(dsm, s(:, k), lu, res)
+        else
+          call iterate_ray(dsm, s(:, k), lu, res)
+        end if
+      end if
+      p(:, k) = res%p
+      q(:, k) = res%q
+      scal(:, k) = [res%lat, res%lon, res%h, res%hs, res%r, res%incidence, res%qlat, res%qlon, res%qh, res%qr]
+      status(k) = res%status
+      nsteps(k) = res%nsteps
+    end subroutine trace_one
+
+  end subroutine dsm_trace_packed
+
+end module pi_dsm_exact

@@ -1,0 +1,184 @@
+!> Geodetic coordinates on a reference ellipsoid (semi-major axis a,
+!> flattening f): ECR (Earth-centred rotating = body-fixed) Cartesian x, y, z
+!> <-> geodetic latitude phi, east longitude lambda, height h.
+!>
+!> * geodetic_to_ecr: the standard closed form (prime vertical radius N).
+!> * ecr_to_geodetic_printed: Shin & Park eq. 2 exactly as printed
+!>   (numerator z + (a^2/b^2) e^2 sin^3 theta, which is dimensionally wrong:
+!>   docs/shin-park-notes.md note 1).
+!> * ecr_to_geodetic_bowring: eq. 2 as Bowring (1976) and Dana (1997), the
+!>   paper's source, give it: z + e'^2 b sin^3 theta [note 1].
+!> * ecr_to_geodetic: exact. The foot point on the meridian ellipse is the
+!>   root of Eberly's monotone function F(t) (t = h / |grad| scale), found by
+!>   Newton from Bowring's estimate inside a bracket that bisection keeps
+!>   shrinking: always terminates (at most geo_maxit iterations), relative
+!>   accuracy ~1e-15; exact at the poles, on the equator and at the centre.
+!>   h is the signed distance to the ellipsoid (negative inside).
+!>
+!> Angles in radians, lengths in the units of a. All routines are elemental.
+module pi_geodetic
+  use pi_kinds, only: dp
+  implicit none
+  private
+
+  public :: geodetic_to_ecr, ecr_to_geodetic, ecr_to_geodetic_bowring, ecr_to_geodetic_printed, &
+            geo_maxit
+
+  !> Iteration limit of the exact conversion (bisection fallback keeps it finite;
+  !> Newton needs 1-3 iterations from Bowring's estimate near the surface).
+  integer, parameter :: geo_maxit = 200
+
+contains
+
+  !> ECR Cartesian point of geodetic (lat, lon, h) on the ellipsoid (a, f).
+  !>
+  !> Inputs: lat, lon (radians), h (units of a), a > 0, 0 <= f < 1.
+  !> Outputs: x, y, z (units of a).
+  elemental subroutine geodetic_to_ecr(lat, lon, h, a, f, x, y, z)
+    real(dp), intent(in) :: lat, lon, h, a, f
+    real(dp), intent(out) :: x, y, z
+    real(dp) :: e2, sl, cl, n
+    e2 = f * (2.0_dp - f)
+    sl = sin(lat)
+    cl = cos(lat)
+    n = a / sqrt(1.0_dp - e2 * sl * sl)
+    x = (n + h) * cl * cos(lon)
+    y = (n + h) * cl * sin(lon)
+    z = (n * (1.0_dp - e2) + h) * sl
+  end subroutine geodetic_to_ecr
+
+  !> Shin & Park eq. 2 exactly as printed (Bowring's one-step formula with the
+  !> factor b missing from the numerator's second term) [note 1].
+  !>
+  !> Inputs: x, y, z ECR (units of a); a, f. Outputs: lat, lon (radians), h.
+  elemental subroutine ecr_to_geodetic_printed(x, y, z, a, f, lat, lon, h)
+    real(dp), intent(in) :: x, y, z, a, f
+    real(dp), intent(out) :: lat, lon, h
+    real(dp) :: b, e2, p, th
+    b = a * (1.0_dp - f)
+    e2 = f * (2.0_dp - f)
+    p = sqrt(x * x + y * y)
+    th = atan2(z * a, b * p)                                         ! Shin & Park eq. 2, theta
+    lat = atan2(z + (a * a / (b * b)) * e2 * sin(th)**3, p - e2 * a * cos(th)**3)  ! eq. 2 as printed [note 1]
+    lon = atan2(y, x)                                                ! eq. 2, lambda
+    h = p / cos(lat) - a / sqrt(1.0_dp - e2 * sin(lat)**2)           ! eq. 2, h
+  end subroutine ecr_to_geodetic_printed
+
+  !> Shin & Park eq. 2 as Bowring/Dana state it (e'^2 b sin^3 theta) [note 1]:
+  !> the one-step formula the paper cites. h = p/cos(lat) - N as printed
+  !> (ill-conditioned within ~1 degree of the poles: note 2).
+  !>
+  !> Inputs: x, y, z ECR (units of a); a, f. Outputs: lat, lon (radians), h.
+  elemental subroutine ecr_to_geodetic_bowring(x, y, z, a, f, lat, lon, h)
+    real(dp), intent(in) :: x, y, z, a, f
+    real(dp), intent(out) :: lat, lon, h
+    real(dp) :: b, e2, ep2, p, th
+    b = a * (1.0_dp - f)
+    e2 = f * (2.0_dp - f)
+    ep2 = e2 / (1.0_dp - e2)
+    p = sqrt(x * x + y * y)
+    th = atan2(z * a, b * p)                                         ! Shin & Park eq. 2, theta
+    lat = atan2(z + ep2 * b * sin(th)**3, p - e2 * a * cos(th)**3)   ! eq. 2, phi [note 1]
+    lon = atan2(y, x)                                                ! eq. 2, lambda
+    h = p / cos(lat) - a / sqrt(1.0_dp - e2 * sin(lat)**2)           ! eq. 2, h [note 2]
+  end subroutine ecr_to_geodetic_bowring
+
+  !> Exact ECR -> geodetic conversion (see the module header).
+  !>
+  !> Inputs: x, y, z ECR (units of a); a > 0; 0 <= f < 1.
+  !> Outputs: lat, lon (radians; lon = atan2(y, x), 0 on the axis), h (signed
+  !> distance to the ellipsoid, units of a); nx, ny, nz: the unit outward
+  !> normal of the ellipsoid at the foot point (the gradient of h).
+  !> On the equatorial plane inside the evolute the foot point is not unique;
+  !> the northern one is returned.
+  elemental subroutine ecr_to_geodetic(x, y, z, a, f, lat, lon, h, nx, ny, nz)
+    real(dp), intent(in) :: x, y, z, a, f
+    real(dp), intent(out) :: lat, lon, h
+    real(dp), intent(out), optional :: nx, ny, nz
+    real(dp) :: b, a2, b2, e2, y0, y1, x0, x1, t, lo, hi, fv, dfv, tn, q0, q1, g0, g1, gn
+    real(dp) :: latb, hb, sl, nn, rho
+    integer :: it
+    b = a * (1.0_dp - f)
+    a2 = a * a
+    b2 = b * b
+    e2 = f * (2.0_dp - f)
+    y0 = sqrt(x * x + y * y)
+    y1 = abs(z)
+    if (y0 > 0.0_dp) then
+      lon = atan2(y, x)
+    else
+      lon = 0.0_dp
+    end if
+    if (y1 == 0.0_dp .and. y0 >= (a2 - b2) / a) then      ! equatorial plane, outside the evolute
+      x0 = a
+      x1 = 0.0_dp
+      t = a * (y0 - a)                                     ! so that h = t * |g| below
+    else if (y1 == 0.0_dp) then                           ! equatorial plane inside the evolute
+      x0 = a2 * y0 / (a2 - b2)
+      x1 = b * sqrt(max(0.0_dp, 1.0_dp - (x0 / a)**2))
+      t = -b2
+    else if (y0 == 0.0_dp) then                           ! on the polar axis
+      x0 = 0.0_dp
+      x1 = b
+      t = b * (y1 - b)
+    else
+      ! Eberly: F(t) = (a y0/(t+a2))^2 + (b y1/(t+b2))^2 - 1, decreasing on (-b2, inf)
+      lo = -b2 + b * y1
+      hi = -b2 + sqrt(a2 * y0 * y0 + b2 * y1 * y1)
+      ! start: Bowring's estimate, h = t |grad|, |grad| = N / a^2 at the foot point
+      call ecr_to_geodetic_bowring(y0, 0.0_dp, y1, a, f, latb, nn, hb)
+      sl = sin(latb)
+      nn = a / sqrt(1.0_dp - e2 * sl * sl)
+      t = hb * a2 / nn
+      if (.not. (t > lo .and. t < hi)) t = 0.5_dp * (lo + hi)
+      do it = 1, geo_maxit
+        q0 = a * y0 / (t + a2)
+        q1 = b * y1 / (t + b2)
+        fv = q0 * q0 + q1 * q1 - 1.0_dp
+        if (fv > 0.0_dp) then
+          lo = t
+        else if (fv < 0.0_dp) then
+          hi = t
+        else
+          exit
+        end if
+        dfv = -2.0_dp * (q0 * q0 / (t + a2) + q1 * q1 / (t + b2))
+        tn = t - fv / dfv
+        if (.not. (tn > lo .and. tn < hi)) tn = 0.5_dp * (lo + hi)
+        if (abs(tn - t) <= 1.0e-15_dp * (abs(t) + a2) .or. &
+            .not. (hi - lo > 0.0_dp)) then
+          t = tn
+          exit
+        end if
+        t = tn
+      end do
+      x0 = a2 * y0 / (t + a2)
+      x1 = b2 * y1 / (t + b2)
+    end if
+    ! gradient direction at the foot point (x0/a2, x1/b2); h = t * |g|
+    g0 = x0 / a2
+    g1 = x1 / b2
+    gn = sqrt(g0 * g0 + g1 * g1)
+    if (y0 == 0.0_dp .or. (y1 == 0.0_dp .and. y0 >= (a2 - b2) / a)) then
+      h = merge(y1 - b, y0 - a, y0 == 0.0_dp)
+    else if (y1 == 0.0_dp) then
+      h = -sqrt((y0 - x0)**2 + x1 * x1)
+    else
+      h = t * gn
+    end if
+    lat = atan2(g1, g0)
+    if (z < 0.0_dp) lat = -lat
+    if (present(nx)) then
+      rho = g0 / gn                                    ! cos(lat)
+      if (y0 > 0.0_dp) then
+        nx = rho * x / y0
+        ny = rho * y / y0
+      else
+        nx = rho
+        ny = 0.0_dp
+      end if
+    end if
+    if (present(nz)) nz = sign(g1 / gn, z)
+  end subroutine ecr_to_geodetic
+
+end module pi_geodetic

@@ -1,0 +1,538 @@
+"""Geodetic digital surface models and ray tracing over them (Shin & Park).
+
+A :class:`GeodeticDSM` holds heights above a reference ellipsoid (WGS-84 by
+default; any ``a``, ``f``) on a regular grid in geodetic latitude and east
+longitude, pixel-centre registered (DESIGN.md section 8). :func:`intersect_dsm`
+(reached through ``planet_intersect.intersect``) finds where rays meet it:
+
+* ``"following"`` (default): Shin & Park's ray following, steps 1-5 and eqs. 1-5;
+* ``"exact"``: the first entry into the surface to 1e-6 (units of ``a``) along
+  the ray, never late, never a miss, with a max-pyramid built once per DSM;
+* ``"iterative"``: the conventional iterative ray tracing the paper criticises.
+
+Choices where the paper is ambiguous: ``docs/shin-park-notes.md``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+from ._status import DSM_RAY_STATUS, DSMError, DSMStatus
+from .geodetic import WGS84_A, WGS84_F, _wrap180, check_ellipsoid, ecef_to_geodetic
+
+__all__ = ["GeodeticDSM", "DSMResult", "DSMError", "DSMStatus", "DSM_RAY_STATUS", "intersect_dsm"]
+
+_INTERP = {"bilinear": 0, "nearest": 1}
+_DSM_METHODS = {"following": 0, "exact": 1, "iterative": 2}
+
+
+def _number(value, name: str) -> float:
+    if isinstance(value, (bool, np.bool_)):
+        raise DSMError(f"{name} must be a number, got {value!r}")
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise DSMError(f"{name} must be a number, got {value!r}") from None
+    if not math.isfinite(v):
+        raise DSMError(f"{name} must be finite, got {v}")
+    return v
+
+
+class GeodeticDSM:
+    """Heights above an ellipsoid on a regular geodetic latitude/longitude grid.
+
+    Build with :meth:`from_array` or :meth:`read`. Attributes (read-only):
+    ``heights`` (float64 ``[nrows, ncols]``, ellipsoidal heights with the geoid
+    added, NaN where no data, a private read-only copy), ``lat_first``,
+    ``lon_first``, ``dlat``, ``dlon`` (deg), ``nrows``, ``ncols``, ``a``, ``f``,
+    ``interpolation``, ``hmax`` (H_max: the largest height, or the given bound),
+    ``hmin``, ``nodata``, ``path`` (None in memory), ``resampling`` (how a
+    projected raster was warped; None otherwise).
+
+    Row ``i`` is at geodetic latitude ``lat_first + i*dlat`` (``dlat < 0``:
+    north-up, the usual raster order; stored as given), column ``j`` at east
+    longitude ``lon_first + j*dlon`` (``dlon > 0``); longitudes modulo 360, so
+    an extent may cross the antimeridian.
+    """
+
+    def __init__(self):
+        raise TypeError("use GeodeticDSM.from_array(...) or GeodeticDSM.read(path)")
+
+    @classmethod
+    def from_array(cls, heights, lat_first, lon_first, dlat, dlon, a: float = WGS84_A, f: float = WGS84_F,
+                   nodata=None, geoid=None, interpolation: str = "bilinear", hmax=None) -> "GeodeticDSM":
+        """A DSM from an array and its grid.
+
+        Parameters
+        ----------
+        heights : array [nrows, ncols]
+            Heights above the ellipsoid (or above the geoid with ``geoid``), units
+            of ``a``. NaN or ``nodata`` marks no data; infinities are rejected.
+        lat_first, lon_first : float
+            Geodetic latitude / east longitude (deg) of the centre of row 0 / column 0.
+        dlat, dlon : float
+            Row and column spacing (deg); ``dlat`` non-zero (negative: north-up),
+            ``dlon > 0``; ``ncols*dlon <= 360``.
+        a, f : float
+            Ellipsoid (WGS-84 by default; e.g. Mars's for areodetic heights).
+        nodata : float, optional
+            Value marking no data (besides NaN).
+        geoid : float, array [nrows, ncols] or path, optional
+            Geoid undulation N added to heights above the geoid: ``h = H + N``;
+            a path is read with :meth:`read` and must have the same grid.
+        interpolation : "bilinear" or "nearest"
+            Bilinear in (lat, lon) between pixel centres, or flat-topped cells
+            with vertical walls (building DSMs).
+        hmax : float, optional
+            H_max for the ray start (Shin & Park step 1): at least the largest height.
+        """
+        self = object.__new__(cls)
+        if isinstance(interpolation, str) is False or interpolation not in _INTERP:
+            raise DSMError(f"interpolation must be 'bilinear' or 'nearest', got {interpolation!r}")
+        try:
+            h = np.array(heights, dtype=np.float64, copy=True)
+        except (TypeError, ValueError) as exc:
+            raise DSMError(f"heights: not an array of numbers ({exc})") from None
+        if h.ndim != 2:
+            raise DSMError(f"heights must be 2-D [nrows, ncols], got shape {h.shape}")
+        nmin = 2 if interpolation == "bilinear" else 1
+        if h.shape[0] < nmin or h.shape[1] < nmin:
+            raise DSMError(f"heights: {interpolation} interpolation needs at least {nmin} x {nmin} cells, "
+                           f"got {h.shape}")
+        if np.isinf(h).any():
+            i, j = np.argwhere(np.isinf(h))[0]
+            raise DSMError(f"heights[{i}, {j}] is infinite (use NaN or nodata for missing cells)")
+        if nodata is not None:
+            nd = _number(nodata, "nodata")
+            h[h == nd] = np.nan
+            nodata = nd
+        lat_first = _number(lat_first, "lat_first")
+        lon_first = _number(lon_first, "lon_first")
+        dlat = _number(dlat, "dlat")
+        dlon = _number(dlon, "dlon")
+        if dlat == 0:
+            raise DSMError("dlat must be non-zero (negative for north-up rows)")
+        if dlon <= 0:
+            raise DSMError(f"dlon must be positive (columns go east), got {dlon}")
+        nrows, ncols = h.shape
+        lat_last = lat_first + (nrows - 1) * dlat
+        if not (-90.0 <= lat_first <= 90.0 and -90.0 <= lat_last <= 90.0):
+            raise DSMError(f"latitudes of the pixel centres run from {lat_first} to {lat_last}: "
+                           f"outside [-90, 90] degrees")
+        if ncols * dlon > 360.0 * (1 + 1e-12):
+            raise DSMError(f"ncols * dlon = {ncols * dlon} degrees exceeds 360")
+        a, f = check_ellipsoid(a, f)
+        if isinstance(geoid, (str, os.PathLike)):            # a second raster on the same grid
+            g = GeodeticDSM.read(geoid, a=a, f=f)
+            same = (g.heights.shape == h.shape and
+                    np.allclose([g.lat_first, g.lon_first, g.dlat, g.dlon], [lat_first, lon_first, dlat, dlon],
+                                rtol=0, atol=1e-9 * max(abs(dlat), abs(dlon))))
+            if not same:
+                raise DSMError(f"geoid raster {geoid}: its grid differs from the heights' grid")
+            geoid = np.asarray(g.heights)
+        if geoid is not None:
+            try:
+                n_ = np.asarray(geoid, dtype=np.float64)
+            except (TypeError, ValueError) as exc:
+                raise DSMError(f"geoid: not a number or array ({exc})") from None
+            if n_.ndim not in (0, 2) or (n_.ndim == 2 and n_.shape != h.shape):
+                raise DSMError(f"geoid must be a scalar or an array shaped like heights {h.shape}, got {n_.shape}")
+            if not np.isfinite(n_).all():
+                raise DSMError("geoid has NaN or Inf values")
+            h = h + n_
+        data = np.isfinite(h)
+        if not data.any():
+            raise DSMError("heights: every cell is no-data")
+        hmax_grid = float(np.max(h[data]))
+        hmin = float(np.min(h[data]))
+        if hmax is None:
+            hmax = hmax_grid
+        else:
+            hmax = _number(hmax, "hmax")
+            if hmax < hmax_grid:
+                raise DSMError(f"hmax = {hmax} is below the largest height {hmax_grid}")
+        h.flags.writeable = False
+        self._h = h
+        self._lat_first, self._lon_first, self._dlat, self._dlon = lat_first, lon_first, dlat, dlon
+        self._a, self._f = a, f
+        self._interp = interpolation
+        self._hmax, self._hmin = float(hmax), hmin
+        self._nodata = nodata
+        self._pyramid = None
+        self.path = None
+        self.resampling = None
+        self.crs = None
+        return self
+
+    # ---- read-only attributes
+    heights = property(lambda self: self._h, doc="heights above the ellipsoid [nrows, ncols] (read-only copy)")
+    lat_first = property(lambda self: self._lat_first)
+    lon_first = property(lambda self: self._lon_first)
+    dlat = property(lambda self: self._dlat)
+    dlon = property(lambda self: self._dlon)
+    a = property(lambda self: self._a)
+    f = property(lambda self: self._f)
+    interpolation = property(lambda self: self._interp)
+    hmax = property(lambda self: self._hmax, doc="H_max of Shin & Park step 1")
+    hmin = property(lambda self: self._hmin)
+    nodata = property(lambda self: self._nodata)
+    nrows = property(lambda self: self._h.shape[0])
+    ncols = property(lambda self: self._h.shape[1])
+
+    @property
+    def lats(self) -> np.ndarray:
+        """Row-centre latitudes (deg)."""
+        return self._lat_first + np.arange(self.nrows) * self._dlat
+
+    @property
+    def lons(self) -> np.ndarray:
+        """Column-centre longitudes (deg, [-180, 180))."""
+        return _wrap180(self._lon_first + np.arange(self.ncols) * self._dlon)
+
+    def __repr__(self) -> str:
+        return (f"GeodeticDSM({self.nrows} x {self.ncols}, lat {self._lat_first}{self._dlat:+g}/row, "
+                f"lon {self._lon_first}{self._dlon:+g}/col, {self._interp}, a={self._a}, f={self._f})")
+
+    def with_interpolation(self, interpolation: str) -> "GeodeticDSM":
+        """The same grid with another interpolation (shares the heights)."""
+        if interpolation not in _INTERP:
+            raise DSMError(f"interpolation must be 'bilinear' or 'nearest', got {interpolation!r}")
+        new = object.__new__(type(self))
+        new.__dict__.update(self.__dict__)
+        new._interp = interpolation
+        return new
+
+    def _core_grid(self):
+        return (self._h.T, math.radians(self._lat_first), math.radians(self._lon_first),
+                math.radians(self._dlat), math.radians(self._dlon), self._a, self._f, _INTERP[self._interp])
+
+    def height(self, lat, lon) -> np.ndarray:
+        """Surface height H at geodetic (lat, lon) in degrees (NaN outside or over no-data)."""
+        from . import _core
+
+        lat, lon = np.broadcast_arrays(np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64))
+        shape = lat.shape
+        hs, code = _core.core_dsm_height(*self._core_grid(), np.radians(lat).ravel(), np.radians(lon).ravel())
+        hs = hs.reshape(shape)
+        return hs if shape else float(hs)
+
+    def pyramid(self) -> tuple[np.ndarray, np.ndarray]:
+        """The max-pyramid of the exact mode, built once and kept with the DSM.
+
+        Level k >= 1 holds the largest height of each 2^k x 2^k block of cells
+        (no-data counts as +huge so that the search always looks at it). Returns
+        ``(data, meta)``: the levels packed in one float64 array (row-major), and
+        ``meta[k-1] = (rows, cols, offset)``.
+        """
+        if self._pyramid is not None:
+            return self._pyramid
+        big = np.finfo(np.float64).max
+        level = np.where(np.isnan(self._h), big, self._h)
+        parts, meta, off = [], [], 0
+        while True:
+            r, c = level.shape
+            pr, pc = (r + 1) // 2, (c + 1) // 2
+            padded = np.full((2 * pr, 2 * pc), -big)
+            padded[:r, :c] = level
+            level = padded.reshape(pr, 2, pc, 2).max(axis=(1, 3))
+            parts.append(level.ravel())
+            meta.append((pr, pc, off))
+            off += level.size
+            if pr == 1 and pc == 1:
+                break
+        data = np.concatenate(parts)
+        data.flags.writeable = False
+        self._pyramid = (data, np.array(meta, dtype=np.int32))
+        return self._pyramid
+
+    # ---- readers
+    @classmethod
+    def read(cls, path, band: int = 1, nodata=None, geoid=None, interpolation: str | None = None,
+             resampling: str = "nearest", a: float = WGS84_A, f: float = WGS84_F, hmax=None) -> "GeodeticDSM":
+        """Read a DSM from a GeoTIFF (rasterio, extra ``geo``) or an ``.npz``.
+
+        GeoTIFF in a geographic CRS: read as it is (pixel centres from the
+        affine transform, which must be axis-aligned). In a projected CRS (UTM
+        LiDAR DSMs...): warped to a geodetic grid of about the same resolution
+        with ``resampling`` ("nearest" by default so that building edges stay
+        sharp; "bilinear" also allowed), recorded in ``dsm.resampling``.
+        ``nodata`` defaults to the file's own. ``interpolation`` defaults to
+        "nearest" for a warped raster, else "bilinear".
+
+        ``.npz``: arrays ``heights`` and scalars ``lat_first``, ``lon_first``,
+        ``dlat``, ``dlon`` (optional ``a``, ``f``, ``nodata``, ``interpolation``).
+
+        The file is only read, never written.
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"DSM file {path}: no such file")
+        if path.suffix.lower() == ".npz":
+            return cls._read_npz(path, nodata, geoid, interpolation, a, f, hmax)
+        return cls._read_raster(path, band, nodata, geoid, interpolation, resampling, a, f, hmax)
+
+    @classmethod
+    def _read_npz(cls, path, nodata, geoid, interpolation, a, f, hmax):
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                d = {k: z[k] for k in z.files}
+        except Exception as exc:  # noqa: BLE001 - any unreadable file
+            raise DSMError(f"DSM file {path}: cannot be read as .npz ({exc})") from None
+        missing = [k for k in ("heights", "lat_first", "lon_first", "dlat", "dlon") if k not in d]
+        if missing:
+            raise DSMError(f"DSM file {path}: missing arrays {missing} (need heights, lat_first, lon_first, dlat, dlon)")
+        interp = interpolation or (str(d["interpolation"]) if "interpolation" in d else "bilinear")
+        try:
+            dsm = cls.from_array(d["heights"], float(d["lat_first"]), float(d["lon_first"]), float(d["dlat"]),
+                                 float(d["dlon"]), a=float(d.get("a", a)), f=float(d.get("f", f)),
+                                 nodata=nodata if nodata is not None else (float(d["nodata"]) if "nodata" in d else None),
+                                 geoid=geoid, interpolation=interp, hmax=hmax)
+        except (DSMError, ValueError, TypeError) as exc:
+            raise DSMError(f"DSM file {path}: {exc}") from None
+        dsm.path = path
+        return dsm
+
+    @classmethod
+    def _read_raster(cls, path, band, nodata, geoid, interpolation, resampling, a, f, hmax):
+        try:
+            import rasterio
+            from rasterio.warp import Resampling, calculate_default_transform, reproject
+        except ImportError:
+            raise ImportError(f"reading {path} needs rasterio: pip install 'planet-intersect[geo]'") from None
+        if resampling not in ("nearest", "bilinear"):
+            raise DSMError(f"resampling must be 'nearest' or 'bilinear', got {resampling!r}")
+        try:
+            src = rasterio.open(path)
+        except Exception as exc:  # noqa: BLE001
+            raise DSMError(f"DSM file {path}: cannot be opened as a raster ({exc})") from None
+        with src:
+            if src.crs is None:
+                raise DSMError(f"DSM file {path}: no CRS (a geographic or projected CRS is needed)")
+            if not (1 <= band <= src.count):
+                raise DSMError(f"DSM file {path}: band {band} does not exist (the file has {src.count})")
+            nd = nodata if nodata is not None else src.nodata
+            warped = None
+            if src.crs.is_geographic:
+                t = src.transform
+                if t.b != 0 or t.d != 0:
+                    raise DSMError(f"DSM file {path}: rotated or sheared pixel grid is not supported")
+                heights = src.read(band).astype(np.float64)
+                dlon, dlat = t.a, t.e
+                lon_first = t.c + 0.5 * t.a
+                lat_first = t.f + 0.5 * t.e
+                crs = src.crs
+            else:
+                dst_crs = "EPSG:4326"
+                try:
+                    tr, w, hgt = calculate_default_transform(src.crs, dst_crs, src.width, src.height, *src.bounds)
+                except Exception as exc:  # noqa: BLE001
+                    raise DSMError(f"DSM file {path}: cannot be warped to a geodetic grid ({exc})") from None
+                heights = np.full((hgt, w), np.nan)
+                srcdata = src.read(band).astype(np.float64)
+                if nd is not None:
+                    srcdata[srcdata == nd] = np.nan
+                reproject(srcdata, heights, src_transform=src.transform, src_crs=src.crs, src_nodata=np.nan,
+                          dst_transform=tr, dst_crs=dst_crs, dst_nodata=np.nan,
+                          resampling=getattr(Resampling, resampling))
+                nd = None
+                dlon, dlat = tr.a, tr.e
+                lon_first = tr.c + 0.5 * tr.a
+                lat_first = tr.f + 0.5 * tr.e
+                warped = resampling
+                crs = src.crs
+        interp = interpolation or ("nearest" if warped else "bilinear")
+        try:
+            dsm = cls.from_array(heights, lat_first, lon_first, dlat, dlon, a=a, f=f, nodata=nd, geoid=geoid,
+                                 interpolation=interp, hmax=hmax)
+        except DSMError as exc:
+            raise DSMError(f"DSM file {path}: {exc}") from None
+        dsm.path = path
+        dsm.resampling = warped
+        dsm.crs = str(crs)
+        return dsm
+
+
+@dataclass
+class DSMResult:
+    """Per-ray results of ``intersect(dsm, ...)``; arrays of length N, vectors (N, 3).
+
+    Angles in degrees (latitudes geodetic, longitudes in [-180, 180)), lengths
+    in the DSM's units; NaN where a quantity does not apply.
+    """
+
+    hit: np.ndarray  #: True where the ray meets the surface (HIT or HIT_UNCONVERGED)
+    p: np.ndarray  #: hit point, ECR
+    lat: np.ndarray  #: geodetic latitude of p
+    lon: np.ndarray  #: east longitude of p
+    height: np.ndarray  #: exact geodetic height of p above the ellipsoid
+    surface_height: np.ndarray  #: DSM height H at (lat, lon) of p (= height except on walls of "nearest")
+    distance: np.ndarray  #: r, distance from s along the unit ray
+    incidence: np.ndarray  #: angle between -l and the ellipsoid normal at p (0 = vertical view)
+    status: np.ndarray  #: per-ray code, see :class:`DSMStatus`
+    nsteps: np.ndarray  #: ray points evaluated
+    event_p: np.ndarray  #: NO_DATA / LEFT_DSM: first low point over no-data or outside the DSM
+    event_lat: np.ndarray
+    event_lon: np.ndarray
+    event_height: np.ndarray
+    event_distance: np.ndarray
+    on_ellipsoid: np.ndarray  #: outside="ellipsoid": LEFT_DSM rays given the bare-ellipsoid point
+    ellipsoid_p: np.ndarray  #: first intersection with the ellipsoid h = 0 (those rays)
+    ellipsoid_lat: np.ndarray
+    ellipsoid_lon: np.ndarray
+    ellipsoid_distance: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.status)
+
+    def to_xarray(self):
+        """The results as an :class:`xarray.Dataset` with dimensions ``ray`` and ``xyz``."""
+        import xarray as xr
+
+        data = {}
+        for fld in fields(self):
+            value = getattr(self, fld.name)
+            data[fld.name] = (("ray", "xyz") if value.ndim == 2 else ("ray",), value)
+        ds = xr.Dataset(data, coords={"ray": np.arange(len(self)), "xyz": ["x", "y", "z"]})
+        ds.attrs["status_codes"] = "; ".join(f"{k}: {v}" for k, v in DSM_RAY_STATUS.items())
+        ds.attrs["angles"] = "degrees; latitudes geodetic, longitudes east in [-180, 180)"
+        return ds
+
+    def to_table(self) -> dict:
+        """Flat columns (vectors split into _x/_y/_z) for CSV export."""
+        cols = {}
+        for fld in fields(self):
+            value = getattr(self, fld.name)
+            if value.ndim == 2:
+                for k, axis in enumerate("xyz"):
+                    cols[f"{fld.name}_{axis}"] = value[:, k]
+            else:
+                cols[fld.name] = value
+        return cols
+
+
+def _vectors(v, name: str) -> np.ndarray:
+    try:
+        v = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: not an array of numbers ({exc})") from None
+    shape = v.shape
+    if v.ndim == 1:
+        v = v[None, :]
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise ValueError(f"{name}: expected shape (3,) or (N, 3), got {shape}")
+    bad = ~np.isfinite(v).all(axis=1)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise ValueError(f"{name}[{k}] has NaN or Inf components: {v[k]}")
+    return v
+
+
+def intersect_dsm(dsm: GeodeticDSM, s, l, method: str = "following", threads: int | None = None,
+                  outside: str = "none") -> DSMResult:
+    """Where rays P(r) = s + r l meet a geodetic DSM (Shin & Park).
+
+    Parameters
+    ----------
+    dsm : GeodeticDSM
+    s : array (3,) or (N, 3)
+        Focal point(s) in the DSM ellipsoid's ECR frame, units of ``dsm.a``.
+    l : array (3,) or (N, 3)
+        Ray direction(s), any non-zero length (normalised here).
+    method : "following", "exact" or "iterative"
+        "following" (default): the paper's ray following (steps 1-5, eqs. 1-5,
+        refinement by safeguarded false position to 1e-6 along the ray).
+        "exact": the first entry into the surface (to 1e-6 along the ray).
+        "iterative": the conventional iterative ray tracing (status
+        OSCILLATION / NOT_CONVERGED where it fails).
+    threads : int, optional
+        OpenMP threads (None or 0: all cores); results bit-identical for any count.
+    outside : "none" or "ellipsoid"
+        "ellipsoid": rays that leave the DSM (LEFT_DSM) also get their first
+        intersection with the bare ellipsoid (``ellipsoid_*``, ``on_ellipsoid``).
+
+    Raises
+    ------
+    ValueError
+        Bad shapes, NaN/Inf or zero-length vectors, unknown method/outside, or a
+        focal point at or below the surface (names ``s`` and the ray).
+    """
+    from . import _core
+
+    if not isinstance(dsm, GeodeticDSM):
+        raise TypeError(f"dsm must be a planet_intersect.GeodeticDSM, got {type(dsm).__name__}")
+    if method not in _DSM_METHODS:
+        raise ValueError(f"method for a GeodeticDSM must be 'following', 'exact' or 'iterative', got {method!r}")
+    if outside not in ("none", "ellipsoid"):
+        raise ValueError(f"outside must be 'none' or 'ellipsoid', got {outside!r}")
+    if threads is None:
+        threads = 0
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 0:
+        raise ValueError(f"threads must be a non-negative integer (0 or None: all cores), got {threads!r}")
+    s = _vectors(s, "s")
+    l = _vectors(l, "l")
+    zero = ~(np.einsum("ij,ij->i", l, l) > 0)
+    if zero.any():
+        raise ValueError(f"l[{int(np.argmax(zero))}] has zero length")
+    if len(s) != len(l) and len(s) != 1 and len(l) != 1:
+        raise ValueError(f"s and l: {len(s)} positions do not broadcast against {len(l)} directions")
+    n = max(len(s), len(l))
+    s = np.ascontiguousarray(np.broadcast_to(s, (n, 3)))
+    l = np.ascontiguousarray(np.broadcast_to(l, (n, 3)))
+    pyr, meta = dsm.pyramid()
+    p, q, scal, status, nsteps, stat = _core.core_dsm_trace(
+        *dsm._core_grid()[:7], dsm._core_grid()[7], dsm.hmax, dsm.hmin, pyr, meta.T, s.T, l.T,
+        _DSM_METHODS[method], int(threads))
+    if stat != 0:
+        raise ValueError(f"intersect: the core rejected method {method!r} (status {stat})")
+    inside = np.flatnonzero(status == DSMStatus.INSIDE)
+    if inside.size:
+        k = int(inside[0])
+        raise ValueError(f"s[{k}] = {s[k]} is at or below the DSM surface ({inside.size} ray(s) affected): "
+                         f"the focal point must be above the surface")
+    nan3 = np.full((n, 3), np.nan)
+    nan1 = np.full(n, np.nan)
+    res = DSMResult(
+        hit=(status == DSMStatus.HIT) | (status == DSMStatus.HIT_UNCONVERGED),
+        p=p.T.copy(), lat=np.degrees(scal[0]), lon=_wrap180(np.degrees(scal[1])), height=scal[2].copy(),
+        surface_height=scal[3].copy(), distance=scal[4].copy(), incidence=np.degrees(scal[5]),
+        status=status.astype(np.int8), nsteps=nsteps.astype(np.int32),
+        event_p=q.T.copy(), event_lat=np.degrees(scal[6]), event_lon=_wrap180(np.degrees(scal[7])),
+        event_height=scal[8].copy(), event_distance=scal[9].copy(),
+        on_ellipsoid=np.zeros(n, dtype=bool), ellipsoid_p=nan3, ellipsoid_lat=nan1.copy(),
+        ellipsoid_lon=nan1.copy(), ellipsoid_distance=nan1.copy())
+    if outside == "ellipsoid":
+        left = np.flatnonzero(status == DSMStatus.LEFT_DSM)
+        if left.size:
+            r = _ellipsoid_entry(s[left], l[left] / np.linalg.norm(l[left], axis=1, keepdims=True), dsm.a, dsm.f)
+            ok = np.isfinite(r)
+            k = left[ok]
+            pe = s[k] + r[ok, None] * (l[k] / np.linalg.norm(l[k], axis=1, keepdims=True))
+            res.on_ellipsoid[k] = True
+            res.ellipsoid_p[k] = pe
+            res.ellipsoid_distance[k] = r[ok]
+            if k.size:
+                la, lo, _ = ecef_to_geodetic(pe, dsm.a, dsm.f)
+                res.ellipsoid_lat[k], res.ellipsoid_lon[k] = la, lo
+    return res
+
+
+def _ellipsoid_entry(s, l, a, f):
+    """First r >= 0 where s + r l meets the ellipsoid (NaN if never)."""
+    b = a * (1 - f)
+    w = np.array([1 / a, 1 / a, 1 / b])
+    ls, ss = l * w, s * w
+    qa = np.sum(ls * ls, axis=1)
+    qb = np.sum(ls * ss, axis=1)
+    qc = np.sum(ss * ss, axis=1) - 1
+    disc = qb * qb - qa * qc
+    with np.errstate(invalid="ignore"):
+        sq = np.sqrt(disc)
+        r1 = (-qb - sq) / qa
+        r2 = (-qb + sq) / qa
+    r = np.where(r1 >= 0, r1, np.where(r2 >= 0, 0.0, np.nan))
+    return np.where(disc >= 0, r, np.nan)

@@ -1,0 +1,319 @@
+"""Ray tracing over geodetic DSMs: following (Shin & Park), exact and iterative.
+
+Expectations are independent of the Fortran core: plane-line intersections for
+walls (a meridian is a plane through the axis), level crossings of the exact
+geodetic height found by bisection with PROJ's conversion, and the paper's two
+failure modes of iterative ray tracing on purpose-built scenes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import planet_intersect as pi
+from planet_intersect import DSMStatus, GeodeticDSM
+
+A, F = 6378137.0, 1 / 298.257223563
+METHODS = ("following", "exact", "iterative")
+
+
+def enu(lat, lon):
+    la, lo = np.radians(lat), np.radians(lon)
+    up = np.array([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)])
+    east = np.array([-np.sin(lo), np.cos(lo), 0.0])
+    north = np.cross(up, east)
+    return east, north, up
+
+
+def ray_to(lat, lon, h, off_nadir, azimuth, dist=600e3, a=A, f=F):
+    """A ray from `dist` away through geodetic (lat, lon, h), `off_nadir` deg from the
+    local vertical, travelling towards `azimuth` (deg clockwise from north)."""
+    east, north, up = enu(lat, lon)
+    o, z = np.radians(off_nadir), np.radians(azimuth)
+    d = -np.cos(o) * up + np.sin(o) * (np.sin(z) * east + np.cos(z) * north)    # travel direction
+    target = pi.geodetic_to_ecef(lat, lon, h, a, f)
+    return target - dist * d, d
+
+
+def level_crossing_proj(s, d, level, r0, r1):
+    """First r in [r0, r1] where the geodetic height (by PROJ) drops to `level` (bisection)."""
+    pyproj = pytest.importorskip("pyproj", reason="pyproj (extra 'geo') is not installed")
+    t = pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
+
+    def h(r):
+        p = s + r * d
+        return t.transform(p[0], p[1], p[2])[2]
+
+    assert h(r0) > level > h(r1)
+    for _ in range(80):
+        m = 0.5 * (r0 + r1)
+        if h(m) > level:
+            r0 = m
+        else:
+            r1 = m
+    return r1
+
+
+def block_dsm(interp="nearest", ground=0.0, top=50.0):
+    """1e-5 deg cells (1.11 m N-S, 0.79 m E-W at 45 N); a block 40 cells wide E-W."""
+    h = np.full((200, 200), ground)
+    h[:, 100:140] = top
+    return GeodeticDSM.from_array(h, 45.0, 10.0, 1e-5, 1e-5, interpolation=interp)
+
+
+WALL_LON = 10.0 + 99.5e-5          # west face of the block (cell edge)
+
+
+def test_wall_hit_is_the_plane_intersection():
+    """Level-0 point 10 cells inside the block: the ray meets the west wall, as the
+    plane of the meridian predicts; iterative tracing oscillates (Fig. 1b)."""
+    dsm = block_dsm()
+    s, d = ray_to(45.001, 10.0 + 109e-5, 0.0, 30.0, 90.0)
+    # the wall plane: atan2(y, x) = WALL_LON  <=>  p . (-sin, cos, 0) = 0
+    nrm = np.array([-np.sin(np.radians(WALL_LON)), np.cos(np.radians(WALL_LON)), 0.0])
+    r_wall = -np.dot(s, nrm) / np.dot(d, nrm)
+    lat_w, lon_w, h_w = pi.ecef_to_geodetic(s + r_wall * d)
+    assert 0.0 < h_w < 50.0                                   # the ray does meet the wall
+    for method in ("following", "exact"):
+        res = pi.intersect(dsm, s, d, method=method)
+        assert res.status[0] == DSMStatus.HIT, method
+        assert res.distance[0] == pytest.approx(r_wall, abs=2e-6), method
+        assert res.lon[0] == pytest.approx(WALL_LON, abs=1e-10)
+        assert res.height[0] == pytest.approx(h_w, abs=1e-5)
+        assert res.surface_height[0] == 50.0                  # the wall top
+    it = pi.intersect(dsm, s, d, method="iterative")
+    assert it.status[0] == DSMStatus.OSCILLATION             # endless: 0 -> roof -> 50 -> ground -> 0 ...
+    assert not it.hit[0]
+
+
+def test_roof_hit_not_the_ground_behind():
+    """Level-0 point on the ground 5 m behind (east of) the block: the ray enters
+    through the roof (h = 50); iterative tracing converges to the ground behind (Fig. 1c)."""
+    dsm = block_dsm()
+    s, d = ray_to(45.001, 10.0 + 146e-5, 0.0, 30.0, 90.0)
+    r_roof = level_crossing_proj(s, d, 50.0, 599e3, 600.1e3)
+    for method in ("following", "exact"):
+        res = pi.intersect(dsm, s, d, method=method)
+        assert res.status[0] == DSMStatus.HIT
+        assert res.distance[0] == pytest.approx(r_roof, abs=2e-6)
+        assert res.height[0] == pytest.approx(50.0, abs=1e-5)
+        assert 10.0 + 99.5e-5 < res.lon[0] < 10.0 + 139.5e-5
+    it = pi.intersect(dsm, s, d, method="iterative")
+    assert it.status[0] == DSMStatus.HIT                      # it "converges" ...
+    assert it.height[0] == pytest.approx(0.0, abs=1e-6)        # ... to the ground behind the building
+    assert it.distance[0] == pytest.approx(600e3, abs=1e-3)
+
+
+@pytest.mark.parametrize("interp", ["bilinear", "nearest"])
+def test_constant_surface_is_the_level_crossing(interp):
+    """A constant DSM at 120 m: every method hits the first point of geodetic height 120."""
+    dsm = GeodeticDSM.from_array(np.full((50, 60), 120.0), 44.99, 9.99, 0.0005, 0.0005, interpolation=interp)
+    rng = np.random.default_rng(0)
+    for k in range(8):
+        lat, lon = 45.0 + rng.uniform(-0.002, 0.002), 10.0 + rng.uniform(-0.002, 0.002)
+        s, d = ray_to(lat, lon, 120.0, rng.uniform(0, 40), rng.uniform(0, 360), dist=rng.uniform(1e3, 7e5))
+        dist = np.linalg.norm(pi.geodetic_to_ecef(lat, lon, 120.0) - s)
+        r = level_crossing_proj(s, d, 120.0, dist - 50, dist + 50)
+        for method in METHODS:
+            res = pi.intersect(dsm, s, d, method=method)
+            assert res.status[0] == DSMStatus.HIT
+            assert res.distance[0] == pytest.approx(r, abs=2e-6), method
+            assert res.height[0] == pytest.approx(120.0, abs=2e-6)
+
+
+def test_paper_nadir_case():
+    """Exactly vertical ray: the paper returns the projected point at once (step 1)."""
+    dsm = block_dsm()
+    lat, lon = 45.001, 10.0 + 120e-5
+    n = enu(lat, lon)[2]
+    s = pi.geodetic_to_ecef(lat, lon, 7e5)
+    res = pi.intersect(dsm, s, -n, method="following")
+    assert res.status[0] == DSMStatus.HIT and res.nsteps[0] == 1
+    assert res.height[0] == pytest.approx(50.0, abs=1e-6)
+    ex = pi.intersect(dsm, s, -n, method="exact")
+    assert ex.distance[0] == pytest.approx(res.distance[0], abs=2e-6)
+
+
+def test_no_data_left_miss_inside():
+    h = np.full((100, 100), 10.0)
+    h[40:60, 40:60] = np.nan
+    dsm = GeodeticDSM.from_array(h, 45.0, 10.0, 1e-5, 1e-5, interpolation="nearest")
+    s_nd, d_nd = ray_to(45.0005, 10.0005, 10.0, 20.0, 45.0)         # aimed into the hole
+    s_out, d_out = ray_to(45.0005, 10.002, 10.0, 20.0, 90.0)        # aimed east of the DSM
+    s_up, d_up = ray_to(45.0005, 10.0005, 10.0, 20.0, 45.0)
+    d_up = -d_up                                                    # pointing to space
+    for method in ("following", "exact"):
+        res = pi.intersect(dsm, np.array([s_nd, s_out, s_up]), np.array([d_nd, d_out, d_up]),
+                           method=method, outside="ellipsoid")
+        assert list(res.status) == [DSMStatus.NO_DATA, DSMStatus.LEFT_DSM, DSMStatus.MISS], method
+        assert not res.hit.any() and np.isnan(res.p).all()
+        # the no-data event: over the hole, below H_max
+        assert 45.0004 - 1e-9 <= res.event_lat[0] <= 45.0006 and res.event_height[0] <= 10.0 + 1e-9
+        # left the DSM: east of the last cell edge, low
+        assert res.event_lon[1] >= 10.0 + 99.5e-5 - 1e-6 and res.event_height[1] <= 10.0 + 1e-9
+        # the bare-ellipsoid fallback for that ray
+        assert res.on_ellipsoid.tolist() == [False, True, False]
+        assert pi.ecef_to_geodetic(res.ellipsoid_p[1])[2] == pytest.approx(0.0, abs=1e-6)
+    with pytest.raises(ValueError, match=r"s\[0\] = .* at or below the DSM surface"):
+        pi.intersect(dsm, pi.geodetic_to_ecef(45.0001, 10.0001, 5.0), [0, 0, -1.0])
+
+
+def test_exact_mode_edge_statuses():
+    dsm = block_dsm()
+    s, d = ray_to(45.001, 10.0 + 120e-5, 50.0, 10.0, 0.0)
+    # a ray starting outside the area but low enough: hits once it is over the DSM
+    s2 = pi.geodetic_to_ecef(45.001, 9.9999, 60.0)
+    east = enu(45.001, 10.0)[0]
+    d2 = east - 0.2 * enu(45.001, 10.0)[2]
+    for method in ("following", "exact"):
+        res = pi.intersect(dsm, np.array([s, s2]), np.array([d, d2]), method=method)
+        assert res.status.tolist() == [DSMStatus.HIT, DSMStatus.HIT], method
+    # ... on the block's west wall: the meridian plane's intersection
+    nrm = np.array([-np.sin(np.radians(WALL_LON)), np.cos(np.radians(WALL_LON)), 0.0])
+    d2u = d2 / np.linalg.norm(d2)
+    r_wall = -np.dot(s2, nrm) / np.dot(d2u, nrm)
+    res = pi.intersect(dsm, s2, d2, method="exact")
+    assert res.distance[0] == pytest.approx(r_wall, abs=2e-6)
+    assert 0.0 < res.height[0] < 50.0
+
+
+@pytest.fixture(scope="module")
+def city():
+    """A 1 m-class building DSM (1e-5 deg cells) with blocks 3-150 m and one-cell towers."""
+    rng = np.random.default_rng(7)
+    n = 400
+    h = np.full((n, n), 100.0) + np.linspace(0, 5, n)[None, :]
+    for _ in range(500):
+        i, j = rng.integers(0, n, 2)
+        w, e = rng.integers(1, 25, 2)
+        h[i:i + w, j:j + e] = 100 + rng.uniform(3, 150)
+    for _ in range(60):
+        i, j = rng.integers(0, n, 2)
+        h[i, j] = 100 + rng.uniform(50, 150)
+    return h
+
+
+def city_rays(dsm, n, seed=3):
+    rng = np.random.default_rng(seed)
+    s, d = [], []
+    for _ in range(n):
+        lat = dsm.lat_first + rng.uniform(0.3, 0.7) * (dsm.nrows - 1) * dsm.dlat
+        lon = dsm.lon_first + rng.uniform(0.3, 0.7) * (dsm.ncols - 1) * dsm.dlon
+        si, di = ray_to(lat, lon, 100.0, rng.uniform(0, 30), rng.uniform(0, 360), dist=rng.uniform(5e5, 7e5))
+        s.append(si)
+        d.append(di)
+    return np.array(s), np.array(d)
+
+
+@pytest.mark.parametrize("interp", ["nearest", "bilinear"])
+def test_following_never_before_exact(city, interp):
+    """Every crossing the following finds is at or after the exact first entry;
+    most agree (the rest are the paper's steps across corners: notes 14-15)."""
+    dsm = GeodeticDSM.from_array(city, 45.0, 10.0, 1e-5, 1e-5, interpolation=interp)
+    s, d = city_rays(dsm, 3000)
+    ex = pi.intersect(dsm, s, d, method="exact")
+    fo = pi.intersect(dsm, s, d, method="following")
+    assert ex.hit.all() and fo.hit.all()
+    late = fo.distance - ex.distance
+    assert late.min() > -2e-6
+    agree = np.abs(late) <= 2e-6
+    assert agree.mean() > 0.9
+    # each exact hit is on the surface: height at or below H there, on a wall or at H
+    assert (ex.height <= ex.surface_height + 1e-6).all()
+    if interp == "bilinear":
+        # 1e-6 m along the ray on slopes up to 150 m per 0.79 m cell: |h - H| <= 2e-4 m
+        np.testing.assert_allclose(ex.height, ex.surface_height, atol=2e-4)
+        assert np.median(np.abs(ex.height - ex.surface_height)) < 1e-6
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_threads_bit_identical(city, method):
+    dsm = GeodeticDSM.from_array(city, 45.0, 10.0, 1e-5, 1e-5, interpolation="nearest")
+    s, d = city_rays(dsm, 2000, seed=11)
+    r1 = pi.intersect(dsm, s, d, method=method, threads=1)
+    r2 = pi.intersect(dsm, s, d, method=method, threads=2)
+    for name in ("p", "status", "nsteps", "distance", "event_p"):
+        np.testing.assert_array_equal(getattr(r1, name), getattr(r2, name))
+
+
+def test_antimeridian_and_pole_and_mars():
+    # a DSM across the antimeridian: a ray aimed at lon 180.0005
+    h = np.full((100, 100), 30.0)
+    h[:, 50:] = 60.0
+    dsm = GeodeticDSM.from_array(h, -10.0, 179.9995, 1e-5, 1e-5, interpolation="nearest")
+    s, d = ray_to(-9.9995, -179.9997, 60.0, 15.0, 0.0)
+    for method in ("following", "exact"):
+        res = pi.intersect(dsm, s, d, method=method)
+        assert res.status[0] == DSMStatus.HIT and res.height[0] == pytest.approx(60.0, abs=2e-6)
+        assert res.lon[0] == pytest.approx(-179.9997, abs=2e-5)
+    # near the north pole
+    dsm = GeodeticDSM.from_array(np.full((40, 400), 5.0), 89.99, -180.0, 0.00025, 0.9, interpolation="bilinear")
+    s, d = ray_to(89.995, 30.0, 5.0, 20.0, 10.0)
+    for method in METHODS:
+        res = pi.intersect(dsm, s, d, method=method)
+        assert res.status[0] == DSMStatus.HIT and res.height[0] == pytest.approx(5.0, abs=2e-6)
+    # Mars areodetic heights
+    a, f = 3396190.0, 1 / 169.8
+    dsm = GeodeticDSM.from_array(np.full((20, 20), -2000.0), 18.0, 226.0, 0.01, 0.01, a=a, f=f)
+    s, d = ray_to(18.1, 226.1, -2000.0, 25.0, 200.0, dist=3e5, a=a, f=f)
+    res = pi.intersect(dsm, s, d, method="exact")
+    assert res.status[0] == DSMStatus.HIT
+    assert res.distance[0] == pytest.approx(3e5, abs=2e-6)
+    assert pi.ecef_to_geodetic(res.p[0], a, f)[2] == pytest.approx(-2000.0, abs=2e-6)
+
+
+def test_dispatch_and_errors(city):
+    dsm = GeodeticDSM.from_array(city, 45.0, 10.0, 1e-5, 1e-5)
+    s, d = city_rays(dsm, 2)
+    assert pi.intersect(dsm, s, d).nsteps.sum() == pi.intersect(dsm, s, d, method="following").nsteps.sum()
+    with pytest.raises(ValueError, match="method for a GeodeticDSM must be 'following', 'exact' or 'iterative'"):
+        pi.intersect(dsm, s, d, method="stepping")
+    with pytest.raises(TypeError, match=r"\['step_mode'\] apply to a planetary DEM"):
+        pi.intersect(dsm, s, d, step_mode=0)
+    with pytest.raises(ValueError, match="outside must be"):
+        pi.intersect(dsm, s, d, outside="wall")
+    with pytest.raises(ValueError, match=r"l\[1\] has zero length"):
+        pi.intersect(dsm, s, [d[0], [0, 0, 0]])
+    with pytest.raises(ValueError, match=r"s\[0\] has NaN"):
+        pi.intersect(dsm, [np.nan, 0, 0], d[0])
+    with pytest.raises(ValueError, match="threads must be"):
+        pi.intersect(dsm, s, d, threads=-1)
+    dem = pi.DEM.from_array(np.full((180, 360), 3390.0))
+    with pytest.raises(ValueError, match="method must be 'stepping' or 'exact'"):
+        pi.intersect(dem, [5000.0, 0, 0], [-1.0, 0, 0], method="following")
+    with pytest.raises(TypeError, match=r"\['outside'\] apply to a GeodeticDSM only"):
+        pi.intersect(dem, [5000.0, 0, 0], [-1.0, 0, 0], outside="ellipsoid")
+
+
+def test_result_export(city):
+    xr = pytest.importorskip("xarray", reason="xarray is an optional extra")
+    dsm = GeodeticDSM.from_array(city, 45.0, 10.0, 1e-5, 1e-5)
+    s, d = city_rays(dsm, 5)
+    res = pi.intersect(dsm, s, d, method="exact")
+    ds = res.to_xarray()
+    assert isinstance(ds, xr.Dataset) and ds["p"].dims == ("ray", "xyz")
+    np.testing.assert_array_equal(ds["distance"].values, res.distance)
+    table = res.to_table()
+    np.testing.assert_array_equal(table["p_z"], res.p[:, 2])
+    assert len(res) == 5
+
+
+def test_cli_run_on_a_dsm(tmp_path, capsys):
+    from planet_intersect.cli import main
+
+    h = np.full((200, 200), 0.0)
+    h[:, 100:140] = 50.0
+    f = tmp_path / "block.npz"
+    np.savez(f, heights=h, lat_first=45.0, lon_first=10.0, dlat=1e-5, dlon=1e-5, interpolation="nearest")
+    s1, d1 = ray_to(45.001, 10.0 + 146e-5, 0.0, 30.0, 90.0)           # roof (test above)
+    s2, d2 = ray_to(45.001, 10.0 + 50e-5, 0.0, 10.0, 0.0)              # ground in front
+    rays = tmp_path / "rays.txt"
+    np.savetxt(rays, np.array([np.r_[s1, d1], np.r_[s2, d2]]), fmt="%.17g")
+    assert main(["run", str(f), str(rays), "--out", str(tmp_path / "out"), "--method", "exact"]) == 0
+    assert "2 rays (exact over the DSM" in capsys.readouterr().out
+    table = np.genfromtxt(tmp_path / "out" / "run-001" / "results.csv", delimiter=",", names=True)
+    np.testing.assert_allclose(table["height"], [50.0, 0.0], atol=1e-5)
+    assert list(table["status"]) == [0, 0]
+    assert main(["run", str(f), str(rays), "--method", "stepping", "--out", str(tmp_path / "o2")]) == 2
+    assert "method for a GeodeticDSM must be" in capsys.readouterr().err
