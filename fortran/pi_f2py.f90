@@ -217,7 +217,6 @@ end subroutine core_codes
 ! ============================================================================
 ! Footprint geometry (Mars Odyssey GRS notes, issue 13): pi_footprint.
 ! Python: planet_intersect.footprint. Cells and spectra as in pi_footprint.
-! =====================================================================
 ! ============================================================================
 
 !> Footprint cell count per spectrum (first pass). See pi_footprint::footprint_count.
@@ -256,7 +255,8 @@ subroutine core_footprint_codes(codes)
   integer, intent(out) :: codes(5)
   codes = [fp_ok, fp_bad_position, fp_inside, fp_bad_cells, fp_bad_offsets]
 end subroutine core_footprint_codes
-=======
+
+! ============================================================================
 ! Geodetic DSM system (Shin & Park): conversions, DSM heights, ray tracing.
 ! Angles radians, lengths in the units of a. Grids are hgt(ncols, nrows), the
 ! transpose of Python's heights[nrows, ncols] (no copy).
