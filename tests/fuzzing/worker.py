@@ -43,9 +43,48 @@ def _send(fd: int, obj) -> None:
         view = view[os.write(fd, view):]
 
 
+def trap_invalid_in_core() -> None:
+    """Trap IEEE invalid operations (SIGFPE) inside every Fortran core call, as
+    -ffpe-trap=invalid would in a Fortran main program (in a library that flag
+    does nothing). Only around the core: NumPy makes NaNs on purpose. A quiet
+    NaN the core assigns (ieee_value) or propagates does not trap; an invalid
+    operation (0/0, inf-inf, sqrt(-1), NaN compared with < or >, NaN to integer)
+    does, and the worker dies with SIGFPE: a crash the parent reports."""
+    import ctypes
+    import functools
+
+    from planet_intersect import _core
+
+    libm = ctypes.CDLL("libm.so.6")
+    fe_invalid = 1                                 # x86-64 <fenv.h>
+
+    def trapped(f):
+        @functools.wraps(f)
+        def call(*args, **kwargs):
+            libm.feenableexcept(fe_invalid)
+            try:
+                return f(*args, **kwargs)
+            finally:
+                libm.fedisableexcept(fe_invalid)
+        return call
+
+    for name in dir(_core):
+        if name.startswith("core_") and callable(getattr(_core, name)):
+            setattr(_core, name, trapped(getattr(_core, name)))
+
+
 def main() -> int:
     rfd, wfd = int(sys.argv[1]), int(sys.argv[2])
     faulthandler.enable(file=sys.stderr)          # a segfault prints the Python stack first
+    try:                                           # die with the parent, even in a hung case
+        import ctypes
+        import signal
+
+        ctypes.CDLL("libc.so.6").prctl(1, signal.SIGKILL)    # PR_SET_PDEATHSIG
+        if os.getppid() == 1:
+            return 0
+    except OSError:
+        pass
     limit = int(os.environ.get("PI_FUZZ_MEMORY_MB", "3000")) << 20
     try:                                           # a runaway allocation becomes MemoryError, not the OOM killer
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
@@ -53,6 +92,9 @@ def main() -> int:
         pass
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
     from fuzzing import ops                       # imports numpy and planet_intersect once
+
+    if os.environ.get("PI_FUZZ_FPE_TRAP") == "1":
+        trap_invalid_in_core()
 
     _send(wfd, ("ready", os.getpid()))
     while True:
