@@ -334,13 +334,13 @@ def header_cases(draw):
                                                            DBL_MAX, FLT_MAX]), 0.15))
     if bad_value is not None:
         values[draw(st.integers(0, n - 1))] = bad_value
-        stored = values.astype(dt)
-        top = float(np.nanmax(stored.astype(np.float64))) if np.isfinite(stored.astype(np.float64)).any() else 0
-        if not (np.isfinite(stored.astype(np.float64)).all() and (stored.astype(np.float64) > 0).all()
-                and top <= rmax):
-            why.append(f"a radius of {bad_value!r}")
     with np.errstate(over="ignore"):
-        data = values.astype(dt).tobytes()
+        stored = values.astype(dt)
+    back = stored.astype(np.float64)          # what the file holds (float32 rounds: 1e-3 is stored above 1e-3)
+    if not (np.isfinite(back).all() and (back > 0).all() and back.max() <= rmax):
+        why.append(f"a stored radius of {bad_value if bad_value is not None else back.max()!r} "
+                   f"(rmax {rmax!r}, {dtype})")
+    data = stored.tobytes()
     size = draw(weighted(st.just("exact"), st.sampled_from(["short", "long", "empty", "ppd2"]), 0.1))
     if size == "short":
         data = data[:-1]
