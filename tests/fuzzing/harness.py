@@ -247,6 +247,8 @@ def reproducer(case: dict) -> str:
         body.append("# (then: the DEM must not change when `radii` is overwritten)")
     elif op == "radius":
         body.append(f"dem.radius({_r(case['lat'])}, {_r(case['lon'])})")
+        if case.get("per_ray"):
+            body.append("# then each (lat, lon) alone must give its element")
     elif op == "intersect":
         kw = dict(case.get("kwargs", {}))
         if kw.get("dem_read_mode") == 1 or case.get("all_configs"):
@@ -258,6 +260,8 @@ def reproducer(case: dict) -> str:
         if case.get("all_configs"):
             body.append("# then the same rays with method stepping/exact x dem_read_mode 0/1 x io x threads 1/2 "
                         "(tests/fuzzing/ops.py CONFIGS)")
+        if case.get("per_ray"):
+            body.append("# then each ray alone: pi.intersect(dem, s[k], l[k], ...) must give row k")
     elif op == "mutate":
         body.append(f"s, l = {_r(case['s'])}, {_r(case['l'])}")
         body.append("before = pi.intersect(dem, s, l, method='exact')")
@@ -328,7 +332,14 @@ class Session:
         if self.worker is None:
             self.worker = Worker(timeout=self.timeout)
 
+    expand: bool = False                            # long mode: more calls per case (per_ray, all_configs)
+
     def run(self, case: dict) -> str | None:
+        if self.expand and case["op"] in ("intersect", "radius"):
+            case = dict(case, per_ray=True)
+            if case["op"] == "intersect" and not case.get("kwargs"):
+                case["all_configs"] = True
+        self.last_case = case
         out = self.worker.call(case)
         self.calls += 1
         if out.kind == "ok" and isinstance(out.detail, dict):

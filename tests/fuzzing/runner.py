@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from hypothesis import HealthCheck, Phase, given, seed, settings
+from hypothesis import HealthCheck, Phase, Verbosity, given, seed, settings
 from hypothesis.database import DirectoryBasedExampleDatabase
 
 from .harness import Session, describe, signature
@@ -22,14 +22,14 @@ def ci_settings(max_examples: int) -> settings:
     """Deterministic, no shrinking (the failing case is printed as generated)."""
     return settings(max_examples=max_examples, deadline=None, derandomize=True, database=None,
                     phases=(Phase.explicit, Phase.generate), suppress_health_check=list(HealthCheck),
-                    print_blob=False)
+                    print_blob=False, verbosity=Verbosity.quiet)   # the failure text has the case and a reproducer
 
 
 def long_settings(max_examples: int) -> settings:
     """Random, shrinking, failures kept in .cache/hypothesis for the next run."""
     db = DirectoryBasedExampleDatabase(str(REPO / ".cache" / "hypothesis"))
     return settings(max_examples=max_examples, deadline=None, database=db,
-                    suppress_health_check=list(HealthCheck), print_blob=False)
+                    suppress_health_check=list(HealthCheck), print_blob=False, verbosity=Verbosity.quiet)
 
 
 def make_test(target: str, session: Session, cfg: settings, raise_known: bool = True):
@@ -51,7 +51,7 @@ def make_test(target: str, session: Session, cfg: settings, raise_known: bool = 
         if state["current"] is None and sig not in session.reported:
             state["current"] = sig
         if raise_known or sig == state["current"]:
-            raise FuzzFailure(describe(case, failure))
+            raise FuzzFailure(describe(session.last_case, failure))
 
     test.state = state
     return test
@@ -61,7 +61,7 @@ def long_run(minutes: float, first_seed: int = 0, targets=None, chunk: int = 300
              log=print) -> Session:
     """Round-robin hypothesis runs over the targets until ``minutes`` have passed."""
     names = list(targets or TARGETS)
-    session = Session(timeout=timeout)
+    session = Session(timeout=timeout, expand=True)
     t_end = time.monotonic() + 60.0 * minutes
     k = 0
     last_log = time.monotonic()
