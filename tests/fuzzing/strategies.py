@@ -431,7 +431,7 @@ def cli_cases(draw):
         case["nrays"] = n
         if n and not bad_threads:
             case["must_succeed"] = True
-    if bad_line is not None:
+    if bad_line is not None and not bad_threads:     # (a bad --threads may be reported first)
         case["bad_line"] = bad_line
     return case
 
