@@ -275,6 +275,14 @@ def reproducer(case: dict) -> str:
     elif op == "read":
         name = case.get("name", "d")
         body += [f"open({name + '.hdr'!r}, 'wb').write({case['header']!r})"]
+        if case.get("special"):
+            target = f"{name}.{case['special_which']}"
+            make = {"dir": f"os.mkdir({target!r})", "fifo": f"os.mkfifo({target!r})",
+                    "loop": f"os.symlink({target!r}, {target!r})",
+                    "dangling": f"os.symlink({target + '.missing'!r}, {target!r})"}[case["special"]]
+            return "\n".join(head + ["import os"] + body[:-1] + [
+                f"open({name + '.hdr'!r}, 'wb').write({case['header'][:200]!r})" if case["special_which"] == "dem"
+                else "open('d.dem', 'wb').write(b'')", make, f"pi.DEM.read({name + '.hdr'!r})"])
         data = case["data"]
         body.append(f"open({name + '.dem'!r}, 'wb').write({_data_code(data)})")
         target = {"hdr": name + ".hdr", "dem": name + ".dem", "stem": name}[case.get("open", "hdr")]
@@ -289,7 +297,8 @@ def reproducer(case: dict) -> str:
                             f"pi.intersect(dem, s, l, dem_read_mode=1)")
     elif op == "cli_run":
         body = _dem_code(case["dem"]) + ["dem.write('cli', overwrite=True)",
-                                         f"open('rays.txt', 'wb').write({case['rays']!r})",
+                                         f"open('rays.txt', 'wb').write({case['rays']!r})"
+                                         if not case.get("special") else f"# rays.txt: a {case['special']}",
                                          "import subprocess",
                                          f"subprocess.run(['planet-intersect', 'run', 'cli.hdr', 'rays.txt', "
                                          f"'--out', 'out'] + {list(case.get('options', []))!r})"]

@@ -228,9 +228,37 @@ def op_from_array(case, tmp: Path):
     return {"ppd": dem.ppd}
 
 
+def make_special(path: Path, kind: str) -> None:
+    """Put a directory, a FIFO, a symlink loop or a dangling symlink at ``path``."""
+    if path.exists() or path.is_symlink():
+        path.unlink()
+    if kind == "dir":
+        path.mkdir()
+    elif kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "loop":
+        os.symlink(path.name, path)                 # a link to itself
+    elif kind == "dangling":
+        os.symlink(path.name + ".missing", path)
+
+
+def _check_special_message(case, exc):
+    """A special file is not missing: the message must not say so."""
+    if case.get("special") in ("dir", "fifo", "loop") and "no such file" in str(exc).lower():
+        fail(f"a {case['special']} given as {case['special_which']} is reported as missing: {exc}")
+
+
 def op_read(case, tmp: Path):
     stem = tmp / case.get("name", "d")
     hdr = write_pair(stem, case["header"], case["data"])
+    if case.get("special"):
+        make_special(stem.with_suffix("." + case["special_which"]), case["special"])
+        try:
+            pi.DEM.read(hdr)
+        except Exception as exc:  # noqa: BLE001 - judged here for the message, then by the parent
+            _check_special_message(case, exc)
+            raise
+        fail(f"DEM.read accepted a {case['special']} as its .{case['special_which']} file")
     target = {"hdr": hdr, "dem": stem.with_suffix(".dem"), "stem": stem}[case.get("open", "hdr")]
     dem = pi.DEM.read(target)
     expect = case.get("expect")          # what a valid header means, or None when it must be refused
@@ -389,6 +417,8 @@ def op_cli_run(case, tmp: Path):
     hdr = cli_dem(tmp, case["dem"])
     rays = tmp / case.get("rays_name", "rays.txt")
     rays.write_bytes(case["rays"])
+    if case.get("special"):
+        make_special(rays, case["special"])
     out = tmp / "out"
     argv = ["run", str(hdr), str(rays), "--out", str(out)] + list(case.get("options", []))
     so, se = _io.StringIO(), _io.StringIO()
@@ -412,6 +442,8 @@ def op_cli_run(case, tmp: Path):
             fail(f"planet-intersect run: exit 0 but wrote to stderr: {err[:300]!r}")
         return {"rc": 0}
     lines = [x for x in err.splitlines() if x.strip()]
+    if case.get("special") in ("dir", "fifo", "loop") and "no such file" in err.lower():
+        fail(f"a {case['special']} given as the rays file is reported as missing: {err.strip()}")
     if rc != 2:
         fail(f"planet-intersect run: exit status {rc!r} (2 expected for an error); stderr: {err[-500:]!r}")
     if "Traceback" in err or len(lines) != 1 and not err.startswith("usage:"):

@@ -359,6 +359,11 @@ def header_cases(draw):
     case = {"op": "read", "header": header, "data": data, "expect": expect, "why": "; ".join(why),
             "open": draw(st.sampled_from(["hdr", "hdr", "dem", "stem"])), "names": ["d.hdr", "d.dem"],
             "files": True}
+    if draw(chance(0.04)):                             # not a regular file where one is expected
+        case["special"] = draw(st.sampled_from(["dir", "fifo", "loop", "dangling"]))
+        case["special_which"] = draw(st.sampled_from(["hdr", "dem"]))
+        case["expect"], case["why"] = None, f"the .{case['special_which']} is a {case['special']}"
+        return case
     if either and len(why) == 1:
         case["either"] = True
     if expect is not None and not either:
@@ -427,6 +432,9 @@ def cli_cases(draw):
             "names": ["rays.txt", "cli.hdr", "cli.dem", "threads", "--threads"]}
     bad_threads = any(v in ("-1", "100000", "x") for v in options[1::2] if options[options.index(v) - 1] == "--threads") \
         if "--threads" in options else False
+    if draw(chance(0.03)):                             # the rays file is not a regular file
+        case["special"] = draw(st.sampled_from(["dir", "fifo", "loop", "dangling"]))
+        return case
     if not bad:
         case["nrays"] = n
         if n and not bad_threads:
