@@ -175,7 +175,23 @@ contains
       end if
       exact = .false.
       if (present(method) .and. present(pyr)) exact = method == method_exact
-      if (dm > 0.0_dp .and. exact) then
+      if (dm > 0.0_dp .and. exact .and. s0(1) == 0.0_dp .and. s0(2) == 0.0_dp .and. &
+          l(1) == 0.0_dp .and. l(2) == 0.0_dp) then
+        ! [note 21] a line along the polar axis: the surface on it is the pole's
+        ! radius (section 2.2); every point of it has the pole's latitude and no
+        ! longitude, which the pyramid's boxes cannot bound
+        call dem_radius(dem, sign(0.5_dp*pi, s0(3)), 0.0_dp, r_s, st)   ! the pole on s0's side
+        if (st /= stat_ok) then
+          res%status = ray_failure(st)
+          return
+        end if
+        res%nsteps = 1
+        if (s0(3)*l(3) < 0.0_dp .and. abs(s0(3)) >= r_s) then         ! towards that pole, above it
+          hit = .true.
+          res%p = [0.0_dp, 0.0_dp, sign(r_s, s0(3))]
+          res%status = ray_hit
+        end if
+      else if (dm > 0.0_dp .and. exact) then
         call exact_search(dem, pyr, s0, l, max(d0, 0.0_dp), dm, exact_tol_rel*dem%rmax, hit, d_hit, nodes, st)
         res%nsteps = nodes
         if (st /= stat_ok) then

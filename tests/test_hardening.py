@@ -389,3 +389,74 @@ def test_dem_and_rays_that_are_not_files(tmp_path):
     one_line_error(cli("run", hdr, tmp_path / "dir"), "is a directory")
     one_line_error(cli("run", hdr, tmp_path / "fifo"), "not a regular file")
     one_line_error(cli("run", tmp_path / "dir", tmp_path / "fifo"), "is a directory")
+
+
+# defects the fuzz harness found (tests/fuzzing) --------------------------------------------
+
+@pytest.mark.parametrize("method", ["stepping", "exact"])
+def test_ray_along_the_polar_axis_hits_the_pole(method):
+    """A ray straight down the polar axis, with a high node near the pole: the
+    exact search hung on the south polar axis (fuzz case); the hit is the pole,
+    at the mean radius of the polar row (section 2.2)."""
+    r = run_child(f"""
+        r = np.full((180, 360), 3390.); r[123, 38] = 3439.32
+        res = pi.intersect(pi.DEM.from_array(r), [[0, 0, -5000], [0, 0, 5000]], [[0, 0, 1], [0, 0, -1]],
+                           method={method!r})
+        print(res.status.tolist(), float(res.p[0, 2]), float(res.p[1, 2]))
+    """, timeout=120)
+    status, south, north = r.stdout.rsplit("]", 1)[0] + "]", *r.stdout.rsplit("]", 1)[1].split()
+    assert status == "[0, 0]" and float(south) == pytest.approx(-3390.0, rel=1e-9) \
+        and float(north) == pytest.approx(3390.0, rel=1e-9), r.stdout
+
+
+def test_no_overflow_warnings_for_huge_vectors(flat):
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        res = pi.intersect(flat, [5000.0, 0, 0], [-4e159, 0, 0])
+        assert res.hit[0]
+        with pytest.raises(ValueError, match="rmax from the centre"):
+            pi.intersect(flat, [1e300, 0, 0], [-1.0, 0, 0])
+
+
+def test_header_tabs_are_white_space_in_both_parsers(tmp_path):
+    (tmp_path / "t.hdr").write_bytes(b"1\n3400\n\t\n0\n\t# c\n1\n\tbyteorder = little\n")
+    np.full((180, 360), 3390.0, "<f4").tofile(tmp_path / "t.dem")
+    d = pi.DEM.read(tmp_path / "t.hdr")
+    for mode in (0, 1):
+        assert pi.intersect(d, [6000.0, 0, 0], [-1.0, 0, 0], dem_read_mode=mode).hit[0]
+
+
+def test_a_file_shrunk_by_one_record_is_noticed(tmp_path):
+    hdr = pi.DEM.from_array(np.full((180, 360), 3390.0)).write(tmp_path / "d")
+    d = pi.DEM.read(hdr)
+    size = (tmp_path / "d.dem").stat().st_size
+    os.truncate(tmp_path / "d.dem", size - 4)
+    with pytest.raises(pi.DEMError, match="size changed since DEM.read"):
+        pi.intersect(d, [6000.0, 0, 0], [-1.0, 0, 0], dem_read_mode=1, io="mmap")
+
+
+@pytest.mark.parametrize("kwargs, exc, match", [
+    (dict(dh=np.nan), ValueError, "dh: must be a finite pixel spacing"),
+    (dict(dv=np.inf), ValueError, "dv: must be a finite pixel spacing"),
+    (dict(dh=-0.01), ValueError, "dh: must be a finite pixel spacing"),
+    (dict(nh=3.0), TypeError, "nh: must be an integer"),
+    (dict(nv=None), TypeError, "nv: must be an integer"),
+    (dict(nh=10**12), ValueError, r"nh: must be in 1\.\.100000"),
+    (dict(l0="x"), TypeError, "l0: must be real numbers"),
+    (dict(l0=[1 + 1j, 0, 0]), TypeError, "l0: must be real numbers"),
+])
+def test_detector_los_bad_arguments(kwargs, exc, match):
+    args = dict(l0=[0.0, 0.0, -1.0], q=[1.0, 0.0, 0.0], nh=3, nv=3, dh=0.01, dv=0.01)
+    args.update(kwargs)
+    with pytest.raises(exc, match=match):
+        pi.detector_los(**args)
+
+
+def test_detector_los_tiny_and_huge_vectors_are_directions():
+    import warnings
+    ref = pi.detector_los([0.0, 0.0, -1.0], [1.0, 0.0, 0.0], 3, 3, 0.01, 0.01)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = pi.detector_los([0.0, 0.0, -1e308], [1e-200, 0.0, 0.0], 3, 3, 0.01, 0.01)
+    np.testing.assert_array_equal(got, ref)

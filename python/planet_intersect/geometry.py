@@ -8,14 +8,41 @@ import numpy as np
 __all__ = ["detector_los", "spheroid_radius", "ray_spheroid_intersection", "latlon_of"]
 
 
+#: Most detector pixels per side (a 100,000 x 100,000 array is 240 GB of directions).
+MAX_PIXELS = 100_000
+
+
 def _unit(v, name):
-    v = np.asarray(v, dtype=np.float64)
+    try:
+        arr = np.asarray(v)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: not an array of numbers ({exc})") from None
+    if arr.dtype.kind not in "fiu":
+        raise TypeError(f"{name}: must be real numbers, got dtype {arr.dtype}")
+    v = arr.astype(np.float64)
     if v.shape != (3,):
         raise ValueError(f"{name}: expected a 3-vector, got shape {v.shape}")
-    n = np.linalg.norm(v)
-    if not np.isfinite(n) or n == 0:
+    if not np.isfinite(v).all() or not v.any():
         raise ValueError(f"{name}: must be finite and non-zero, got {v}")
-    return v / n
+    v = np.ldexp(v, -int(np.frexp(np.abs(v).max())[1]))      # exact power-of-two scaling: no over/underflow
+    return v / np.sqrt(v @ v)
+
+
+def _count(value, name: str) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name}: must be an integer, got {type(value).__name__} {value!r}")
+    if not 1 <= value <= MAX_PIXELS:
+        raise ValueError(f"{name}: must be in 1..{MAX_PIXELS}, got {value}")
+    return int(value)
+
+
+def _spacing(value, name: str) -> float:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name}: must be a real number (radians), got {type(value).__name__} {value!r}")
+    value = float(value)
+    if not (np.isfinite(value) and 0 < value <= np.pi):
+        raise ValueError(f"{name}: must be a finite pixel spacing in (0, pi] radians, got {value}")
+    return value
 
 
 def detector_los(l0, q, nh: int, nv: int, dh: float, dv: float) -> np.ndarray:
@@ -30,8 +57,10 @@ def detector_los(l0, q, nh: int, nv: int, dh: float, dv: float) -> np.ndarray:
     """
     l0 = _unit(l0, "l0")
     q = _unit(q, "q")
-    if int(nh) != nh or int(nv) != nv or nh < 1 or nv < 1:
-        raise ValueError(f"nh, nv: positive integers required, got {nh}, {nv}")
+    nh, nv = _count(nh, "nh"), _count(nv, "nv")
+    dh, dv = _spacing(dh, "dh"), _spacing(dv, "dv")
+    if nh * nv > 50_000_000:
+        raise ValueError(f"nh x nv = {nh * nv} pixels: at most 50,000,000 in one call (1.2 GB of directions)")
     h = np.cross(l0, q)
     hn = np.linalg.norm(h)
     if hn < 1e-12:

@@ -108,7 +108,8 @@ def as_vectors(v, name: str) -> np.ndarray:
         v = v[None, :]
     if v.ndim != 2 or v.shape[1] != 3:
         raise ValueError(f"{name}: expected shape (3,) or (N, 3), got {shape}")
-    n2 = np.einsum("ij,ij->i", v, v)                 # one pass: finite, well-scaled rows pass
+    with np.errstate(over="ignore", under="ignore"):
+        n2 = np.einsum("ij,ij->i", v, v)                 # one pass: finite, well-scaled rows pass
     if ((n2 >= _N2_MIN) & (n2 <= _N2_MAX)).all():
         return v
     bad = ~np.isfinite(v).all(axis=1)
@@ -124,7 +125,8 @@ def _unit_scaled(v: np.ndarray) -> np.ndarray:
     """Directions whose squared length would underflow or overflow, scaled by a
     power of two (exact: the direction is unchanged to the last bit) so that
     their largest component lies in [0.5, 1); other rows as they are."""
-    n2 = np.einsum("ij,ij->i", v, v)
+    with np.errstate(over="ignore", under="ignore"):
+        n2 = np.einsum("ij,ij->i", v, v)
     odd = ~((n2 >= _N2_MIN) & (n2 <= _N2_MAX))
     if not odd.any():
         return v
@@ -252,10 +254,12 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
     l = as_vectors(l, "l")
     if len(s) != len(l) and len(s) != 1 and len(l) != 1:
         raise ValueError(f"s and l: {len(s)} positions do not broadcast against {len(l)} lines of sight")
-    far = np.einsum("ij,ij->i", s, s) > (FAR_LIMIT * dem.rmax) ** 2
+    with np.errstate(over="ignore"):
+        far = np.einsum("ij,ij->i", s, s) > (FAR_LIMIT * dem.rmax) ** 2
     if far.any():
         k = int(np.argmax(far))
-        raise ValueError(f"s[{k}] = {s[k]} is {np.linalg.norm(s[k]) / dem.rmax:.3g} rmax from the centre: "
+        big = np.abs(s[k]).max()
+        raise ValueError(f"s[{k}] = {s[k]} is {big * np.linalg.norm(s[k] / big) / dem.rmax:.3g} rmax from the centre: "
                          f"at most {FAR_LIMIT:g} rmax (a unit vector's direction is resolved to ~1e-16, so "
                          "farther away the line's position at the planet is lost to rounding)")
     l = _unit_scaled(l)
