@@ -225,9 +225,14 @@ def city():
 
 
 def test_smooth_jacksboro(jacksboro):
-    """Real smooth terrain (3 arc-second cells): agreement to TOL on every ray both hit inside.
+    """Real smooth terrain (3 arc-second cells, ~74 m x 92 m): agreement to TOL on every ray
+    both hit inside, except where Rugged's point is off the surface at a cell edge.
 
-    Measured (3,000 pushbroom rays, 500-700 km, 0-30 deg off nadir): FILLED IN BELOW.
+    Measured (3,000 pushbroom rays, 500-700 km, 0-30 deg off nadir, heights +
+    the constant geoid -32 m as ellipsoidal heights): exact and following
+    within 2.7e-6 m of Rugged on 2,999 rays; one ray (b, late) where Rugged's
+    point is 1.0e-4 m below the surface on a cell edge, 1.05e-4 m from the
+    implementation's hit.
     """
     s, l = aimed(jacksboro, 3000, seed=1, margin=0.05)
     out, ex, rug = run_both(jacksboro, s, l, "jacksboro")
@@ -236,12 +241,18 @@ def test_smooth_jacksboro(jacksboro):
         assert out[m]["max_d_a"] <= TOL
     assert out["exact"]["f"] == 0
     assert out["exact"]["a"] >= 2990
+    assert out["exact"]["max_d_b_late"] <= 1e-3  # Rugged's edge errors on smooth terrain: sub-mm
 
 
 def test_building_city(city):
-    """A 1 m building DSM on the Jacksboro base, 5,000 pushbroom rays: zero real disagreements.
+    """A 1 m building DSM on the Jacksboro base (600 x 600 cells), 5,000 pushbroom rays:
+    zero real disagreements.
 
-    Measured: FILLED IN BELOW.
+    Measured: exact agrees within 4.8e-6 m on 4,991 rays; 9 rays (0.18 %) are
+    Rugged's false hits (b), 0.2-6.0 m off the surface, up to 105.5 m before
+    the true first hit (which the scan along the ray confirms). Following: the
+    same 9 (b), 4,930 agreeing, and 61 rays (1.2 %) where it is late (up to
+    172 m) while exact and Rugged agree.
     """
     s, l = aimed(city, 5000, seed=3)
     out, ex, rug = run_both(city, s, l, "city")
@@ -249,3 +260,70 @@ def test_building_city(city):
     assert e["a"] + e["b"] + e["b_late"] == 5000 and e["f"] == 0
     assert e["a"] >= 4950
     assert e["max_d_a"] <= TOL
+    # Rugged's quirk is there (about 1 ray in 1,000 expected), and exact mode has none of it
+    assert 1 <= e["b"] <= 25, e["b"]
+    assert out["following"]["f"] <= 0.03 * 5000
+
+
+def test_antimeridian():
+    """A small DSM from 179.9 E to 179.9 W (0.2 deg x 0.1 deg, ~55 m cells): hills and blocks.
+
+    Rays hit on both sides of 180 deg; the same classification, zero (c).
+    """
+    d = 0.0005
+    nr, nc = 201, 401
+    lat = 10.0 + d * np.arange(nr)[:, None]
+    x = np.arange(nc)[None, :]
+    rng = np.random.default_rng(21)
+    heights = 200 + 60 * np.sin((lat - 10.0) * 90) * np.cos(x / 23.0) + 0 * x
+    for _ in range(60):  # blocks of 1-4 cells, 20-120 m tall: sharp bilinear ramps
+        i, j = rng.integers(0, nr - 4), rng.integers(0, nc - 4)
+        w, h = rng.integers(1, 5, 2)
+        heights[i:i + h, j:j + w] += rng.uniform(20, 120)
+    grid = dict(heights=heights, lat_first=10.0, lon_first=179.9, dlat=d, dlon=d)
+    s, l = aimed(grid, 2000, seed=22, margin=0.05)
+    out, ex, rug = run_both(grid, s, l, "antimeridian")
+    e = out["exact"]
+    assert e["a"] + e["b"] + e["b_late"] == 2000 and e["f"] == 0
+    assert e["max_d_a"] <= TOL
+    east, west = ex.lon > 179.9, ex.lon < -179.9
+    assert east.sum() > 500 and west.sum() > 500, (east.sum(), west.sum())
+    assert np.all(ex.hit & rug["inside"])
+
+
+def test_north_up_and_south_up(city):
+    """The city given north-up (as built) and flipped south-up: the same hits from the
+    implementation (to 1e-6 m) and the same classification against Rugged, zero (c)."""
+    g = city
+    n = g["heights"].shape[0]
+    south = dict(heights=g["heights"][::-1].copy(), lat_first=g["lat_first"] + (n - 1) * g["dlat"],
+                 lon_first=g["lon_first"], dlat=-g["dlat"], dlon=g["dlon"])
+    assert south["dlat"] > 0
+    s, l = aimed(g, 1500, seed=31)
+    out, ex_south, rug = run_both(south, s, l, "city south-up")
+    e = out["exact"]
+    assert e["a"] + e["b"] + e["b_late"] == 1500 and e["f"] == 0
+    north = pi.GeodeticDSM.from_array(g["heights"], g["lat_first"], g["lon_first"], g["dlat"], g["dlon"])
+    ex_north = pi.intersect(north, s, l, method="exact")
+    assert np.all(ex_north.hit) and np.all(ex_south.hit)
+    assert np.abs(ex_north.p - ex_south.p).max() <= 1e-6
+
+
+def test_classification_can_fail(jacksboro):
+    """The classifier flags a 1 mm shift of the implementation's hits, and a hit moved
+    100 m down the ray, as real disagreements (c)."""
+    s, l = aimed(jacksboro, 200, seed=41, margin=0.05)
+    dsm = pi.GeodeticDSM.from_array(jacksboro["heights"], jacksboro["lat_first"], jacksboro["lon_first"],
+                                    jacksboro["dlat"], jacksboro["dlon"])
+    rug = RuggedDSM(jacksboro["heights"], jacksboro["lat_first"], jacksboro["lon_first"],
+                    jacksboro["dlat"], jacksboro["dlon"]).intersect(s, l)
+    ex = pi.intersect(dsm, s, l, method="exact")
+    assert classify(jacksboro, s, l, ex, rug)["c"].sum() == 0
+
+    class Shifted:  # the fields classify reads
+        pass
+
+    for dr in (1e-3, 100.0):
+        bad = Shifted()
+        bad.hit, bad.p, bad.distance = ex.hit, ex.p + dr * l, ex.distance + dr
+        assert classify(jacksboro, s, l, bad, rug)["c"].all(), dr
