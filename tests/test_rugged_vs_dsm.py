@@ -19,6 +19,9 @@ Every ray is put in exactly one class (:func:`classify`):
     later along the ray and on the surface. For these rays a scan along the ray
     (0.005 m steps, the package's code not used) checks that no point between
     Rugged's hit and the implementation's is at or below the surface.
+    The same mechanism sometimes errs the other way ("b_late"): Rugged's point
+    is off the surface at a cell edge, BELOW it, and later than the
+    implementation's on-surface hit (once on Jacksboro, 1e-4 m).
 (f) ``method="following"`` only: the paper's ray following is late (it stepped
     over a corner; docs/shin-park-notes.md note 14) where Rugged is on the
     surface and the exact mode agrees with Rugged within ``TOL``.
@@ -249,8 +252,9 @@ def test_building_city(city):
     zero real disagreements.
 
     Measured: exact agrees within 4.8e-6 m on 4,991 rays; 9 rays (0.18 %) are
-    Rugged's false hits (b), 0.2-6.0 m off the surface, up to 105.5 m before
-    the true first hit (which the scan along the ray confirms). Following: the
+    Rugged's false hits (b), 1 mm-6.0 m off the surface, within 0.074 cell of
+    a cell edge, 3.1-105.5 m before the true first hit (which the scan along
+    the ray confirms). Following: the
     same 9 (b), 4,930 agreeing, and 61 rays (1.2 %) where it is late (up to
     172 m) while exact and Rugged agree.
     """
@@ -269,6 +273,7 @@ def test_antimeridian():
     """A small DSM from 179.9 E to 179.9 W (0.2 deg x 0.1 deg, ~55 m cells): hills and blocks.
 
     Rays hit on both sides of 180 deg; the same classification, zero (c).
+    Measured: all 2,000 rays agree within 9.9e-7 m (exact and following); no (b).
     """
     d = 0.0005
     nr, nc = 201, 401
@@ -293,7 +298,11 @@ def test_antimeridian():
 
 def test_north_up_and_south_up(city):
     """The city given north-up (as built) and flipped south-up: the same hits from the
-    implementation (to 1e-6 m) and the same classification against Rugged, zero (c)."""
+    implementation (to 1e-6 m) and the same classification against Rugged, zero (c).
+
+    Measured (1,500 rays): 1,497 agree within 8.7e-7 m; 3 Rugged false hits (b),
+    up to 13.4 m off the surface and 113 m early; following late on 14 rays.
+    """
     g = city
     n = g["heights"].shape[0]
     south = dict(heights=g["heights"][::-1].copy(), lat_first=g["lat_first"] + (n - 1) * g["dlat"],
