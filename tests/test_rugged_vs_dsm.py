@@ -14,9 +14,10 @@ Every ray is put in exactly one class (:func:`classify`):
 (b) Rugged's known false hit: Rugged's point lies OFF the bilinear surface
     (``|h - H(lat, lon)| > TOL_H``, heights evaluated here independently),
     within 1/8 cell of a cell edge (Rugged accepts a cell's root up to
-    ``SimpleTile.TOLERANCE`` = 1/8 cell outside the cell, i.e. on the extension
-    of the neighbouring cell's bilinear patch), and the implementation's hit is
-    later along the ray and on the surface. For these rays a scan along the ray
+    ``SimpleTile.TOLERANCE`` = 1/8 cell outside the cell), ON the extension of
+    one of the 8 neighbouring cells' bilinear patches (within ``TOL_H``;
+    measured <= 7e-8 m), and the implementation's hit is later along the ray
+    and on the surface. For these rays a scan along the ray
     (0.005 m steps, the package's code not used) checks that no point between
     Rugged's hit and the implementation's is at or below the surface.
     The same mechanism sometimes errs the other way ("b_late"): Rugged's point
@@ -142,6 +143,26 @@ def g_along(grid, s, l, r):
     return h - z
 
 
+def neighbour_patch_gap(grid, lat, lon, h):
+    """min |h - P(lat, lon)| over the bilinear polynomials P of the 8 cells around the
+    one that holds (lat, lon), each extended beyond its cell (Rugged's 1/8-cell root)."""
+    z = np.asarray(grid["heights"], dtype=np.float64)
+    nr, nc = z.shape
+    u = (lat - grid["lat_first"]) / grid["dlat"]
+    v = ((lon - grid["lon_first"]) % 360.0) / grid["dlon"]
+    i0, j0 = int(np.floor(u)), int(np.floor(v))
+    best = np.inf
+    for i in range(i0 - 1, i0 + 2):
+        for j in range(j0 - 1, j0 + 2):
+            if (i, j) == (i0, j0) or not (0 <= i <= nr - 2 and 0 <= j <= nc - 2):
+                continue
+            fu, fv = u - i, v - j
+            p = ((1 - fu) * ((1 - fv) * z[i, j] + fv * z[i, j + 1])
+                 + fu * ((1 - fv) * z[i + 1, j] + fv * z[i + 1, j + 1]))
+            best = min(best, abs(p - h))
+    return best
+
+
 def first_root(grid, s, l, lo, hi, step=0.002):
     """First r in [lo, hi] with h - H <= 0 on one ray: 2 mm steps, then bisection to 1e-9 m.
 
@@ -182,6 +203,11 @@ def classify(grid, s, l, res, rug, exact=None, exact_cls=None):
     with np.errstate(invalid="ignore"):
         a = both & (d <= TOL)
         ext = both & ~a & (np.abs(off_r) > TOL_H) & (edge <= EIGHTH + 1e-9) & (np.abs(off_i) <= TOL_ON)
+    patch_gap = np.full(n, np.nan)
+    for k in np.flatnonzero(ext):  # and Rugged's point is on a neighbouring cell's extended patch
+        patch_gap[k] = neighbour_patch_gap(grid, rug["lat"][k], rug["lon"][k], rug["h"][k])
+        ext[k] = patch_gap[k] <= TOL_H
+    with np.errstate(invalid="ignore"):
         b = ext & (dr > 0)                      # early: a false hit before the true one
         b_late = ext & (dr < 0) & (off_r < 0)   # late: Rugged's point is already below the surface
         f = np.zeros(n, dtype=bool)
@@ -211,7 +237,7 @@ def classify(grid, s, l, res, rug, exact=None, exact_cls=None):
         o[k] = (abs(root[k] - res.distance[k]) <= TOL) and explained[k] <= OFF_RAY_FACTOR
     c = ~(a | b | b_late | o | f)
     return dict(a=a, b=b, b_late=b_late, o=o, f=f, c=c, d=d, dr=dr, off_r=off_r, off_i=off_i, edge=edge,
-                both=both, perp=perp, root=root, explained=explained)
+                both=both, perp=perp, root=root, explained=explained, patch_gap=patch_gap)
 
 
 def report(cls, s, l, res, rug, name):
@@ -252,6 +278,8 @@ def summary(cls):
     out["max_explained_o"] = float(cls["explained"][cls["o"]].max()) if cls["o"].any() else 0.0
     for k in ("a", "b", "b_late", "o", "f"):
         out[f"max_d_{k}"] = float(cls["d"][cls[k]].max()) if cls[k].any() else 0.0
+    bb = cls["b"] | cls["b_late"]
+    out["max_patch_gap_b"] = float(cls["patch_gap"][bb].max()) if bb.any() else 0.0
     out["max_off_b"] = float(np.abs(cls["off_r"][cls["b"] | cls["b_late"]]).max()) if (cls["b"] | cls["b_late"]).any() else 0.0
     return out
 
