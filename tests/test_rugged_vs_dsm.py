@@ -5,12 +5,13 @@ with Rugged's ``DuvenhageAlgorithm.intersection`` + ``refineIntersection``
 (``tests/references/rugged/bridge.py``) on the same grids (bilinear in geodetic
 latitude / longitude between pixel centres, heights above WGS-84) and the same
 pushbroom rays (``planet_intersect.synthetic_dsm.pushbroom_rays``, aimed at the
-terrain: see :func:`aimed`).
+terrain: see :func:`aimed`), and on the Jacksboro DEM also oblique airborne rays.
 
 Every ray is put in exactly one class (:func:`classify`):
 
 (a) agree: both hit inside the DSM and the hit points are within ``TOL`` (1e-5 m)
-    of each other. Measured: <= 2e-6 m (Jacksboro), <= 8e-7 m (buildings).
+    of each other. Measured: <= 4.8e-6 m on every pushbroom scene, 9.9e-6 m
+    on the airborne rays.
 (b) Rugged's known false hit: Rugged's point lies OFF the bilinear surface
     (``|h - H(lat, lon)| > TOL_H``, heights evaluated here independently),
     within 1/8 cell of a cell edge (Rugged accepts a cell's root up to
@@ -58,10 +59,10 @@ pytestmark = pytest.mark.skipif(not _OK, reason=f"Rugged bridge unavailable: {_W
 
 #: (a): hit points of both within this distance (m). The contract allows 1e-6 m
 #: along the ray on each side; Rugged adds its straight-in-geodetic-coordinates
-#: cell solve, refined once (measured <= 2e-6 m on the rays here).
+#: cell solve, refined once (measured <= 4.8e-6 m on pushbroom rays).
 TOL = 1e-5
 #: (b): Rugged's point is off the surface when |h - H(lat, lon)| exceeds this (m).
-#: Rugged's on-surface points measure <= 3e-7 m here (wall slopes up to ~150).
+#: Rugged's on-surface points measure <= 2.3e-7 m here (wall slopes up to ~150).
 TOL_H = 1e-5
 #: (b): the implementation's point is on the surface within this (m): the
 #: contract's 1e-6 m along the ray times wall slopes up to ~150 m per m, with margin.
@@ -278,6 +279,7 @@ def summary(cls):
     out["max_explained_o"] = float(cls["explained"][cls["o"]].max()) if cls["o"].any() else 0.0
     for k in ("a", "b", "b_late", "o", "f"):
         out[f"max_d_{k}"] = float(cls["d"][cls[k]].max()) if cls[k].any() else 0.0
+    out["max_off_a"] = float(np.abs(cls["off_r"][cls["a"]]).max()) if cls["a"].any() else 0.0
     bb = cls["b"] | cls["b_late"]
     out["max_patch_gap_b"] = float(cls["patch_gap"][bb].max()) if bb.any() else 0.0
     out["max_off_b"] = float(np.abs(cls["off_r"][cls["b"] | cls["b_late"]]).max()) if (cls["b"] | cls["b_late"]).any() else 0.0
@@ -395,7 +397,7 @@ def test_antimeridian():
     lat = 10.0 + d * np.arange(nr)[:, None]
     x = np.arange(nc)[None, :]
     rng = np.random.default_rng(21)
-    heights = 200 + 60 * np.sin((lat - 10.0) * 90) * np.cos(x / 23.0) + 0 * x
+    heights = 200 + 60 * np.sin((lat - 10.0) * 90) * np.cos(x / 23.0)
     for _ in range(60):  # blocks of 1-4 cells, 20-120 m tall: sharp bilinear ramps
         i, j = rng.integers(0, nr - 4), rng.integers(0, nc - 4)
         w, h = rng.integers(1, 5, 2)
