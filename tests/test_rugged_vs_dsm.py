@@ -453,3 +453,20 @@ def test_classification_can_fail(jacksboro):
         bad = Shifted()
         bad.hit, bad.p, bad.distance = ex.hit, ex.p + dr * l, ex.distance + dr
         assert classify(jacksboro, s, l, bad, rug)["c"].all(), dr
+
+
+def test_late_hits_on_the_surface_are_caught(city):
+    """Without the exact mode to vouch for them, the following's late hits (on the
+    surface, behind a building corner) are real disagreements (c), one for one."""
+    s, l = aimed(city, 1500, seed=51)
+    dsm = pi.GeodeticDSM.from_array(city["heights"], city["lat_first"], city["lon_first"],
+                                    city["dlat"], city["dlon"])
+    rug = RuggedDSM(city["heights"], city["lat_first"], city["lon_first"], city["dlat"], city["dlon"]).intersect(s, l)
+    ex = pi.intersect(dsm, s, l, method="exact")
+    fo = pi.intersect(dsm, s, l, method="following")
+    cls_ex = classify(city, s, l, ex, rug)
+    assert cls_ex["c"].sum() == 0
+    late = (fo.distance - ex.distance > TOL) & (cls_ex["a"] | cls_ex["o"])
+    assert late.sum() >= 5, late.sum()
+    cls = classify(city, s, l, fo, rug)  # no exact result given
+    assert np.array_equal(cls["c"], late)
