@@ -117,9 +117,9 @@ def ray_ellipsoid_r(s, l, a=WGS84_A, f=WGS84_F):
 
 
 def aimed(grid, n, seed, margin=0.25, rays=sd.pushbroom_rays):
-    """Pushbroom rays of ``sd.pushbroom_rays`` moved up to the terrain they look at.
+    """Rays of ``rays`` (``sd.pushbroom_rays`` or ``sd.airborne_rays``) moved up to the terrain.
 
-    pushbroom_rays aims at points on the bare ellipsoid (h = 0); over terrain
+    Both aim at points on the bare ellipsoid (h = 0); over terrain
     hundreds of metres up, 30 deg off nadir, the hit would lie hundreds of
     metres away, off a 600 m scene. Each ray is shifted along the ellipsoid
     normal at its h = 0 point by the surface height there (direction kept), so
@@ -282,7 +282,7 @@ def summary(cls):
     out["max_off_a"] = float(np.abs(cls["off_r"][cls["a"]]).max()) if cls["a"].any() else 0.0
     bb = cls["b"] | cls["b_late"]
     out["max_patch_gap_b"] = float(cls["patch_gap"][bb].max()) if bb.any() else 0.0
-    out["max_off_b"] = float(np.abs(cls["off_r"][cls["b"] | cls["b_late"]]).max()) if (cls["b"] | cls["b_late"]).any() else 0.0
+    out["max_off_b"] = float(np.abs(cls["off_r"][bb]).max()) if bb.any() else 0.0
     return out
 
 
