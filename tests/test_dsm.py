@@ -191,7 +191,7 @@ def test_dsm_status_table_matches_compiled_codes():
 
     codes = list(_core.core_dsm_codes())
     assert codes == [DSMStatus.NO_DATA, DSMStatus.LEFT_DSM, DSMStatus.MISS, DSMStatus.NOT_CONVERGED,
-                     DSMStatus.OSCILLATION, DSMStatus.STEP_LIMIT] == list(range(8, 14))
+                     DSMStatus.OSCILLATION, DSMStatus.STEP_LIMIT] == list(range(9, 15))
     assert not set(codes) & set(RAY_STATUS)                      # the DEM codes keep their numbers
     assert sorted(pi.DSM_RAY_STATUS) == [0, 3, 4, 5, 6] + codes
 

@@ -168,22 +168,24 @@ def _read_rays(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         raise CLIError(str(exc)) from None
     rows, lines = [], []
     with open(path, "rb") as fh:
-        for lineno, raw in enumerate(fh, start=1):
-            text = raw.split(b"#", 1)[0].strip()
-            if not text:
-                continue
-            words = text.split()
-            if len(words) != 6:
-                raise CLIError(f"rays file {path}, line {lineno}: expected 6 numbers (sx sy sz lx ly lz), "
-                               f"got {len(words)}")
-            try:
-                rows.append([float(w) for w in words])
-            except ValueError:
-                raise CLIError(f"rays file {path}, line {lineno}: not a number in "
-                               f"{text.decode('ascii', errors='backslashreplace')!r}") from None
-            if not all(np.isfinite(rows[-1])):
-                raise CLIError(f"rays file {path}, line {lineno}: NaN or Inf in {rows[-1]}")
-            lines.append(lineno)
+        content = fh.read()
+    # lines end at LF, CR or CRLF, as in a .hdr (docs/dem-format.md)
+    for lineno, raw in enumerate(re.split(rb"\r\n|\r|\n", content), start=1):
+        text = raw.split(b"#", 1)[0].strip()
+        if not text:
+            continue
+        words = text.split()
+        if len(words) != 6:
+            raise CLIError(f"rays file {path}, line {lineno}: expected 6 numbers (sx sy sz lx ly lz), "
+                           f"got {len(words)}")
+        try:
+            rows.append([float(w) for w in words])
+        except ValueError:
+            raise CLIError(f"rays file {path}, line {lineno}: not a number in "
+                           f"{text.decode('ascii', errors='backslashreplace')!r}") from None
+        if not all(np.isfinite(rows[-1])):
+            raise CLIError(f"rays file {path}, line {lineno}: NaN or Inf in {rows[-1]}")
+        lines.append(lineno)
     if not rows:
         raise CLIError(f"rays file {path}: no rays (every line is blank or a comment)")
     data = np.asarray(rows, dtype=np.float64)

@@ -13,6 +13,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from ._status import RAY_STATUS as RAY_STATUS_TEXT
 from ._status import DEMError, RayStatus, raise_for_stat
 from .dem import DEM
 
@@ -299,6 +300,12 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
         k = int(inside[0])
         raise ValueError(f"s[{k}] = {s[k]} is inside the planet surface "
                          f"({inside.size} ray(s) affected): the spacecraft must be above the DEM")
+    bad = np.flatnonzero((status == RayStatus.BAD_POSITION) | (status == RayStatus.BAD_DIRECTION))
+    if bad.size:                              # the checks above should have caught it: never silent
+        k = int(bad[0])
+        which = "s" if status[k] == RayStatus.BAD_POSITION else "l"
+        raise ValueError(f"{which}[{k}] = {(s if which == 's' else l)[k]} cannot be used by the core "
+                         f"({RAY_STATUS_TEXT[int(status[k])]}; {bad.size} ray(s) affected)")
     unreadable = np.flatnonzero(status == RayStatus.READ_ERROR)
     if unreadable.size:
         raise DEMError(f"{where}: a DEM record needed by ray {int(unreadable[0])} could not be read or is invalid")

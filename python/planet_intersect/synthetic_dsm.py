@@ -131,8 +131,9 @@ def building_scene(n: int = 2048, seed: int = 0, lat0: float = 36.60, lon0: floa
 def pushbroom_rays(scene: dict, n: int, altitude: tuple[float, float] = (500e3, 700e3),
                    off_nadir: tuple[float, float] = (0.0, 30.0), seed: int = 0, margin: float = 0.1):
     """n lines of sight from an orbit ``altitude`` m above the ellipsoid, ``off_nadir``
-    degrees from the local vertical, each aimed at a random ground point well inside
-    the scene (``margin`` of each side left out). Returns s (n, 3), l (n, 3), ECR metres."""
+    degrees from the local vertical, each aimed at the terrain (nearest cell's height)
+    at a random point well inside the scene (``margin`` of each side left out).
+    Returns s (n, 3), l (n, 3), ECR metres."""
     rng = np.random.default_rng(seed)
     h = scene["heights"]
     nr, nc = h.shape
@@ -141,9 +142,19 @@ def pushbroom_rays(scene: dict, n: int, altitude: tuple[float, float] = (500e3, 
     lat = scene["lat_first"] + i * scene["dlat"]
     lon = scene["lon_first"] + j * scene["dlon"]
     a, f = scene.get("a", WGS84_A), scene.get("f", WGS84_F)
-    target = geodetic_to_ecef(lat, lon, np.zeros(n), a, f)
+    target = geodetic_to_ecef(lat, lon, _ground(scene, i, j), a, f)
     return _from_above(target, lat, lon, rng.uniform(*altitude, n), rng.uniform(*off_nadir, n),
                        rng.uniform(0, 2 * np.pi, n))
+
+
+def _ground(scene: dict, i, j) -> np.ndarray:
+    """The scene's height at fractional grid positions (nearest cell): rays are aimed
+    at the terrain there, not at the bare ellipsoid (over 500 m high ground a ray
+    aimed at height 0 from 30 deg off nadir lands 290 m off)."""
+    h = np.asarray(scene["heights"], dtype=np.float64)
+    ii = np.clip(np.rint(i).astype(int), 0, h.shape[0] - 1)
+    jj = np.clip(np.rint(j).astype(int), 0, h.shape[1] - 1)
+    return np.nan_to_num(h[ii, jj])
 
 
 def airborne_rays(scene: dict, n: int, altitude: tuple[float, float] = (1000.0, 3000.0),
@@ -157,7 +168,7 @@ def airborne_rays(scene: dict, n: int, altitude: tuple[float, float] = (1000.0, 
     lat = scene["lat_first"] + i * scene["dlat"]
     lon = scene["lon_first"] + j * scene["dlon"]
     a, f = scene.get("a", WGS84_A), scene.get("f", WGS84_F)
-    target = geodetic_to_ecef(lat, lon, np.zeros(n), a, f)
+    target = geodetic_to_ecef(lat, lon, _ground(scene, i, j), a, f)
     zen = 90.0 - rng.uniform(*elevation, n)
     alt = rng.uniform(*altitude, n)
     dist = alt / np.cos(np.radians(zen))

@@ -337,7 +337,8 @@ def header_cases(draw):
     with np.errstate(over="ignore"):
         stored = values.astype(dt)
     back = stored.astype(np.float64)          # what the file holds (float32 rounds: 1e-3 is stored above 1e-3)
-    if not (np.isfinite(back).all() and (back > 0).all() and back.max() <= rmax):
+    # the accepted range of radii (docs/dem-format.md): finite, in [1e-100, 1e100], <= rmax
+    if not (np.isfinite(back).all() and (back >= 1e-100).all() and back.max() <= min(rmax, 1e100)):
         why.append(f"a stored radius of {bad_value if bad_value is not None else back.max()!r} "
                    f"(rmax {rmax!r}, {dtype})")
     data = stored.tobytes()
