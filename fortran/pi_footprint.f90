@@ -273,8 +273,13 @@ contains
         end if
       end if
       nb = 0
+      ! column j = modulo(jj, ncol), stepped rather than divided per cell (an integer
+      ! division per candidate cell cost more than the test itself); the range
+      ! spans fewer than ncol columns, so j wraps at most once
+      j = modulo(jlo, ncol) - 1
       do jj = jlo, jhi
-        j = modulo(jj, ncol)
+        j = j + 1
+        if (j == ncol) j = 0
         k = i*ncol + j + 1
         uk = u(:, k)
         dv = r - rc(k)*uk                                   ! notes: d = R_S/C - r_C
