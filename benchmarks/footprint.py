@@ -14,6 +14,8 @@ own) after an untimed warm-up call, median of timed calls over >= 2 s
   full geometry with a cone of ~20,000 cells per spectrum, 1 and 2 threads;
   "fresh" allocates new outputs per call (the default), "reuse" passes the
   same output buffers every call (``out=``, where the package supports it);
+  "chunks" calls footprint() once per spectrum, each call reusing the last
+  one's outputs (``out=``, where supported), so that they stay in cache;
 * flux: ``flux_fraction=0.5`` (horizon pass, then the flux cone in NumPy;
   pairs/s counts the pairs of the horizon pass);
 * occlusion: the exact ray casting of ``occlusion=True`` on a small subset
@@ -106,7 +108,18 @@ def measure(spec: dict) -> dict:
             return {"error": "footprint() takes no out= buffers in this version"}
         first = footprint(cells, R, v, **kw)
         kw["out"] = first
-    if case == "occlusion":
+    if case == "chunk":             # one spectrum per call, each call's outputs (~2.4 MB) reused while in cache
+        import inspect
+        reuse = "out" in inspect.signature(footprint).parameters
+        npairs = len(footprint(cells, R, v, **kw))
+
+        def per_spectrum():
+            fp = None
+            for s in range(len(R)):
+                fp = footprint(cells, R[s:s + 1], v[s:s + 1], **kw, **({"out": fp} if reuse else {}))
+        wall, cpu = timed(per_spectrum, spec["min_seconds"])
+        hidden = None
+    elif case == "occlusion":
         R, v = R[:1], v[:1]
         base = footprint(cells, R, v, **kw)
         npairs = len(base)
@@ -116,7 +129,7 @@ def measure(spec: dict) -> dict:
         cpu = [c - float(np.median(gc)) for c in cpu]
         box["fp"] = footprint(cells, R, v, occlusion=True, **kw)
         hidden = int(np.sum(~box["fp"].visible))
-    else:
+    if case not in ("chunk", "occlusion"):
         wall, cpu = timed(lambda: box.__setitem__("fp", footprint(cells, R, v, **kw)), spec["min_seconds"])
         npairs = len(box["fp"])
         hidden = None
@@ -147,6 +160,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="few spectra, 0.3 s per case (CI)")
     ap.add_argument("--footprint", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--label", default="", help="suffix of the result files (e.g. before, after)")
+    ap.add_argument("--note", default="", help="a sentence for the result files (e.g. which build was measured)")
     ap.add_argument("--one", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.one:
@@ -157,10 +171,11 @@ def main(argv=None) -> int:
         return 1
     nspec, min_s = (8, 0.3) if args.quick else (64, 2.0)
     cases = [("geometry", "fresh", 1), ("geometry", "fresh", 2), ("geometry", "reuse", 1), ("geometry", "reuse", 2),
-             ("flux", "fresh", 1), ("occlusion", "fresh", 1), ("cells", "", 1)]
+             ("geometry", "chunks", 1), ("flux", "fresh", 1), ("occlusion", "fresh", 1), ("cells", "", 1)]
     rows = []
     for case, mode, threads in cases:
         name = "reuse" if mode == "reuse" else case
+        name = "chunk" if mode == "chunks" else name
         r = run_isolated(dict(case=name, threads=threads, nspec=nspec, min_seconds=min_s))
         r.update(case=case, outputs=mode, threads=threads)
         rows.append(r)
@@ -174,7 +189,7 @@ def main(argv=None) -> int:
         print(f"{case:10s} {mode:6s} {threads}t  {line}  peak {r.get('peak_rss_mb', float('nan')):6.0f} MB", flush=True)
     machine = dict(machine=platform.machine(), system=platform.system(), python=platform.python_version(),
                    cores=os.cpu_count(), date=time.strftime("%Y-%m-%d %H:%M"), loadavg=os.getloadavg(),
-                   note="shared machine under load: CPU time per call is the figure to compare")
+                   note="shared machine under load: CPU time per call is the figure to compare", run_note=args.note)
     name = "footprint-quick" if args.quick else "footprint"
     if args.label:
         name += "-" + args.label
@@ -190,7 +205,8 @@ def markdown(rows, machine, nspec) -> str:
     lines = [f"# Footprint benchmark ({machine['date']}, {machine['machine']}, {machine['cores']} cores, "
              f"Python {machine['python']}, load average {machine['loadavg'][0]:.1f})", "",
              f"MOLA 4 ppd, 0.5 deg cells, {nspec} 20-s spectra of a {PERI:g} x {APO:g} km orbit, "
-             f"geometry with cos psi >= {ZETA}. Shared machine under load: compare the CPU-time columns.", "",
+             f"geometry with cos psi >= {ZETA}. Shared machine under load: compare the CPU-time columns. "
+             f"{machine.get('run_note', '')}", "",
              "| case | outputs | threads | pairs/spectrum | pairs/s (wall) | pairs per CPU-s | ns/pair (CPU) | "
              "peak RSS (MB) |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:

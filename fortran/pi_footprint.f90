@@ -335,9 +335,13 @@ contains
       ! hp = |a + b|^2: 2 asin(sqrt(hm)/2) up to 90 deg, pi - 2 asin(sqrt(hp)/2)
       ! beyond, so that asin's argument t stays below 0.7072; asin t from fdlibm's
       ! kernel, for t >= 1/2 as pi/2 - 2 asin(sqrt((1 - t)/2)). Accurate near 0 and
-      ! pi where acos(a . b) is not; within 2 ulp of libm (tested); branch-free
-      ! (merge) so that the loop vectorises. Inline arithmetic instead of libm's
-      ! asin and atan2, which took half of the kernel's time.
+      ! pi where acos(a . b) is not; within 2 ulp of libm (tested). Inline
+      ! arithmetic instead of libm's asin and atan2, which took half of the
+      ! kernel's time. The merges do not make the loop vectorise: without
+      ! fast-math (-ftrapping-math) gfortran 12 may not speculate the sqrt and
+      ! compiles them to branches ("control flow in loop"); a branch-free variant
+      ! (both arms computed, 0/1-weight blends, bit-identical) does vectorise but
+      ! was not measurably faster with 2-wide SSE2 (docs/grs-notes.md, speed).
       do c5 = 1, 5
         do b = 1, nb
           t = 0.5_dp * sqrt(min(hm(b, c5), hp(b, c5)))

@@ -228,8 +228,10 @@ def test_reused_output_buffers(spheroid):
     for name in F._PAIR_FIELDS:
         assert np.array_equal(getattr(big, name), getattr(ref, name), equal_nan=True), name
     # the flux cone's result (a subset) keeps the raw pass's memory for the next call
+    # only when reuse was asked for
     q = pi.footprint(spheroid, R[:2], v[:2], flux_fraction=0.5, out=big)
     assert q._buffers is big._buffers and 0 < len(q) < len(ref) and q.visible.all()
+    assert getattr(pi.footprint(spheroid, R[:2], v[:2], flux_fraction=0.5), "_buffers") is None
     with pytest.raises(TypeError, match="out must be a FootprintResult"):
         pi.footprint(spheroid, R, v, out=np.empty(10))
 # ---------------------------------------------------------------------------------------------

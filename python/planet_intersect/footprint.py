@@ -1043,9 +1043,13 @@ def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta:
         nadir_angle=scal[:, 5], position_angle=scal[:, 6], gsh=gsh.T, azimuth=scal[:, 7],
         elevation=scal[:, 8], visible=visible, zeta=zeta_arr,
         cells=cells, airmass_model=airmass_model, H=H)
+    # the output memory goes with the result for a later footprint(out=res) (not a dataclass
+    # field); the flux cone's result is a smaller copy: it keeps the raw pass's memory only
+    # when the caller asked for reuse (out=), so that it does not hold ~10 times its size
+    res._buffers = buffers
     if flux_fraction is not None:
         res = _flux_cone(res, q)
-    res._buffers = buffers          # output memory for a later footprint(out=res); not a dataclass field
+        res._buffers = buffers if out is not None else None
     if occlusion:
         res.visible = occluded_not(cells, R, res, tol=occlusion_tol, threads=int(threads), progress=progress)
     return res
