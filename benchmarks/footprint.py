@@ -167,8 +167,8 @@ def main(argv=None) -> int:
         print(json.dumps(measure(json.loads(args.one))))
         return 0
     if not MOLA.exists():
-        print(f"{MOLA}: no MOLA grid; set PI_SHARED_DATA", file=sys.stderr)
-        return 1
+        print(f"skipped: no MOLA grid at {MOLA} (set PI_SHARED_DATA)", file=sys.stderr)
+        return 0
     nspec, min_s = (8, 0.3) if args.quick else (64, 2.0)
     cases = [("geometry", "fresh", 1), ("geometry", "fresh", 2), ("geometry", "reuse", 1), ("geometry", "reuse", 2),
              ("geometry", "chunks", 1), ("flux", "fresh", 1), ("occlusion", "fresh", 1), ("cells", "", 1)]

@@ -234,6 +234,11 @@ def test_reused_output_buffers(spheroid):
     assert getattr(pi.footprint(spheroid, R[:2], v[:2], flux_fraction=0.5), "_buffers") is None
     with pytest.raises(TypeError, match="out must be a FootprintResult"):
         pi.footprint(spheroid, R, v, out=np.empty(10))
+    # an empty footprint, fresh and into reused memory: zeta = 1 takes only a cell
+    # centre exactly at nadir, and (0 N, 0 E) is a cell corner, not a centre
+    for prev in (None, big):
+        e = pi.footprint(spheroid, [4000.0, 0.0, 0.0], [0.0, 0.0, 1.0], zeta=1.0, out=prev)
+        assert len(e) == 0 and e.d.shape == (0, 3) and e.emission.shape == (0,) and e.counts().tolist() == [0]
 # ---------------------------------------------------------------------------------------------
 # position angle
 # ---------------------------------------------------------------------------------------------

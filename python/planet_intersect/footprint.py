@@ -922,10 +922,12 @@ def _run_kernel(cells: CellTable, R: np.ndarray, frames: np.ndarray, zeta: np.nd
     if buffers is None or buffers.capacity < m:
         buffers = _PairBuffers(m)
     idx, d, gsh, scal = buffers.views(m)
+    if m == 0:                      # nothing to fill (f2py refuses zero-size in-place arrays)
+        return idx, d, gsh, scal, buffers
     fr = np.ascontiguousarray(frames)
     status, stat = _core.core_footprint_fill(
         R.T, fr.transpose(2, 1, 0), zeta, cells.nrow, cells.ncol, cd, u.T, cells.radius, rmin, rtop,
-        cells.normal_detic.T, cells.normal.T, area, ascale, offsets, max(m, 0), idx, d, gsh, scal, threads=threads)
+        cells.normal_detic.T, cells.normal.T, area, ascale, offsets, m, idx, d, gsh, scal, threads=threads)
     _raise_status(stat, status, R, cells)
     return idx, d, gsh, scal, buffers
 
