@@ -232,19 +232,23 @@ subroutine core_footprint_count(ns, r, zeta, nrow, ncol, cd, nc, u, rc, rmin, rt
 end subroutine core_footprint_count
 
 !> Footprint pairs and their geometry (second pass). See pi_footprint::footprint_fill.
+!> idx, d, gsh, scal are the caller's arrays (intent(inout) in _core.pyf), filled
+!> in place: f2py would otherwise zero-fill fresh intent(out) arrays, a whole
+!> extra pass over 128 bytes per pair.
 subroutine core_footprint_fill(ns, r, frames, zeta, nrow, ncol, cd, nc, u, rc, rmin, rtop, ndet, snorm, area, &
-                               offsets, m, threads, idx, d, gsh, scal, status, stat)
+                               ascale, offsets, m, threads, idx, d, gsh, scal, status, stat)
   use pi_kinds, only: dp, i8
   use pi_footprint, only: footprint_fill
   implicit none
   integer, intent(in) :: ns, nrow, ncol, nc, threads
   integer(i8), intent(in) :: m, offsets(ns)
   real(dp), intent(in) :: r(3, ns), frames(3, 3, ns), zeta(ns), cd, u(3, nc), rc(nc), rmin, rtop, &
-                          ndet(3, nc), snorm(3, nc), area
-  integer, intent(out) :: idx(m, 2), status(ns), stat
-  real(dp), intent(out) :: d(3, m), gsh(3, m), scal(m, 9)
+                          ndet(3, nc), snorm(3, nc), area, ascale
+  integer, intent(inout) :: idx(m, 2)
+  integer, intent(out) :: status(ns), stat
+  real(dp), intent(inout) :: d(3, m), gsh(3, m), scal(m, 9)
   call footprint_fill(ns, r, frames, zeta, nrow, ncol, cd, nc, u, rc, rmin, rtop, ndet, snorm, area, &
-                      offsets, m, threads, idx, d, gsh, scal, status, stat)
+                      ascale, offsets, m, threads, idx, d, gsh, scal, status, stat)
 end subroutine core_footprint_fill
 
 !> The footprint status codes as compiled (fp_ok, fp_bad_position, fp_inside,

@@ -94,7 +94,7 @@ contains
     !$omp parallel do schedule(dynamic, 1) num_threads(nt) default(shared) private(s, n, dummy, dummy3, idummy)
     do s = 1, ns
       call scan_spectrum(.false., s, r(:, s), frames(:, :, 1), zeta(s), nrow, ncol, cd, nc, u, rc, u, u, &
-                         rmin, rtop, 0.0_dp, 0_i8, 1_i8, idummy, dummy3, dummy3, dummy, n, status(s))
+                         rmin, rtop, 0.0_dp, 1.0_dp, 0_i8, 1_i8, idummy, dummy3, dummy3, dummy, n, status(s))
       counts(s) = n
     end do
     !$omp end parallel do
@@ -106,7 +106,10 @@ contains
   !> i-th unit axis of spectrum s's spacecraft frame in the planet frame (x up,
   !> y along the ground track, z = x cross y); ndet(3, nc) unit areodetic
   !> normals; snorm(3, nc) unit topographic normals; area the detector's
-  !> projected area (DEM units squared); offsets(ns) the 0-based index of each
+  !> projected area (DEM units squared); ascale the factor applied to every
+  !> angle as the last operation (1: radians; 180/pi: degrees, the same
+  !> rounding as multiplying the radians afterwards, without another pass over
+  !> the outputs); offsets(ns) the 0-based index of each
   !> spectrum's first pair (the running sum of footprint_count's counts); m the
   !> total number of pairs.
   !> Outputs (pair p, 1-based): idx(p, 1) spectrum, idx(p, 2) cell (0-based);
@@ -117,14 +120,16 @@ contains
   !> north through east in [0, 2 pi) (NaN when the spacecraft is over a pole or
   !> the cell is at the sub-spacecraft point), 8 azimuth in the spacecraft
   !> frame from +y toward +z in [0, 2 pi), 9 elevation above the frame's y-z
-  !> plane (radians). status(ns), stat as footprint_count, stat fp_bad_offsets
+  !> plane (columns 3-9 in radians times ascale). The outputs are only
+  !> written (pairs beyond m are never touched), so the caller may pass
+  !> uninitialised or reused memory. status(ns), stat as footprint_count, stat fp_bad_offsets
   !> when a spectrum's pairs would not fit its slot (nothing is then trusted).
   subroutine footprint_fill(ns, r, frames, zeta, nrow, ncol, cd, nc, u, rc, rmin, rtop, ndet, snorm, area, &
-                            offsets, m, threads, idx, d, gsh, scal, status, stat)
+                            ascale, offsets, m, threads, idx, d, gsh, scal, status, stat)
     integer, intent(in) :: ns, nrow, ncol, nc, threads
     integer(i8), intent(in) :: m, offsets(ns)
     real(dp), intent(in) :: r(3, ns), frames(3, 3, ns), zeta(ns), cd, u(3, nc), rc(nc), rmin, rtop, &
-                            ndet(3, nc), snorm(3, nc), area
+                            ndet(3, nc), snorm(3, nc), area, ascale
     integer, intent(out) :: idx(m, 2), status(ns), stat
     real(dp), intent(out) :: d(3, m), gsh(3, m), scal(m, 9)
     integer :: s, nt, bad
@@ -148,7 +153,7 @@ contains
         room = m - offsets(s)
       end if
       call scan_spectrum(.true., s, r(:, s), frames(:, :, s), zeta(s), nrow, ncol, cd, nc, u, rc, ndet, snorm, &
-                         rmin, rtop, area, offsets(s), room, idx, d, gsh, scal, n, status(s))
+                         rmin, rtop, area, ascale, offsets(s), room, idx, d, gsh, scal, n, status(s))
       if (n > room) bad = 1
     end do
     !$omp end parallel do
@@ -182,11 +187,11 @@ contains
   !> and, when `fill`, write their geometry from pair index base + 1 on (at
   !> most `room` pairs). n returns the number of footprint cells.
   subroutine scan_spectrum(fill, s, r, frame, zeta, nrow, ncol, cd, nc, u, rc, ndet, snorm, rmin, rtop, area, &
-                           base, room, idx, d, gsh, scal, n, status)
+                           ascale, base, room, idx, d, gsh, scal, n, status)
     logical, intent(in) :: fill
     integer, intent(in) :: s, nrow, ncol, nc
     real(dp), intent(in) :: r(3), frame(3, 3), zeta, cd, u(3, nc), rc(nc), ndet(3, nc), snorm(3, nc), &
-                            rmin, rtop, area
+                            rmin, rtop, area, ascale
     integer(i8), intent(in) :: base, room
     integer, intent(inout) :: idx(:, :)
     real(dp), intent(inout) :: d(:, :), gsh(:, :), scal(:, :)
@@ -268,8 +273,13 @@ contains
         end if
       end if
       nb = 0
+      ! column j = modulo(jj, ncol), stepped rather than divided per cell (an integer
+      ! division per candidate cell cost more than the test itself); the range
+      ! spans fewer than ncol columns, so j wraps at most once
+      j = modulo(jlo, ncol) - 1
       do jj = jlo, jhi
-        j = modulo(jj, ncol)
+        j = j + 1
+        if (j == ncol) j = 0
         k = i*ncol + j + 1
         uk = u(:, k)
         dv = r - rc(k)*uk                                   ! notes: d = R_S/C - r_C
@@ -325,9 +335,13 @@ contains
       ! hp = |a + b|^2: 2 asin(sqrt(hm)/2) up to 90 deg, pi - 2 asin(sqrt(hp)/2)
       ! beyond, so that asin's argument t stays below 0.7072; asin t from fdlibm's
       ! kernel, for t >= 1/2 as pi/2 - 2 asin(sqrt((1 - t)/2)). Accurate near 0 and
-      ! pi where acos(a . b) is not; within 2 ulp of libm (tested); branch-free
-      ! (merge) so that the loop vectorises. Inline arithmetic instead of libm's
-      ! asin and atan2, which took half of the kernel's time.
+      ! pi where acos(a . b) is not; within 2 ulp of libm (tested). Inline
+      ! arithmetic instead of libm's asin and atan2, which took half of the
+      ! kernel's time. The merges do not make the loop vectorise: without
+      ! fast-math (-ftrapping-math) gfortran 12 may not speculate the sqrt and
+      ! compiles them to branches ("control flow in loop"); a branch-free variant
+      ! (both arms computed, 0/1-weight blends, bit-identical) does vectorise but
+      ! was not measurably faster with 2-wide SSE2 (docs/grs-notes.md, speed).
       do c5 = 1, 5
         do b = 1, nb
           t = 0.5_dp * sqrt(min(hm(b, c5), hp(b, c5)))
@@ -342,23 +356,23 @@ contains
       end do
       do b = 1, nb
         p = p0 + b
-        scal(p, 3) = ang(b, 1)
-        scal(p, 4) = ang(b, 2)
-        scal(p, 5) = ang(b, 3)
-        scal(p, 6) = ang(b, 4)
+        scal(p, 3) = ang(b, 1) * ascale
+        scal(p, 4) = ang(b, 2) * ascale
+        scal(p, 5) = ang(b, 3) * ascale
+        scal(p, 6) = ang(b, 4) * ascale
         if (pole > 1.0e-12_dp .and. px(b) == px(b)) then
           pa = wrap_2pi(sign(ang(b, 5), px(b)))             ! clockwise from north through east (note 5)
-          scal(p, 7) = pa
+          scal(p, 7) = pa * ascale
           ! azimuth from +y (forward) toward +z (left): the horizontal part of r_C - R
           ! is that of r_C, whose bearing is the position angle, so az = (bearing
           ! of the track) - PA (the notes' alpha: track = pi/2 - alpha)
-          scal(p, 8) = wrap_2pi(track - pa)
+          scal(p, 8) = wrap_2pi(track - pa) * ascale
         else
           scal(p, 7) = nan                                  ! over a pole north is undefined
-          scal(p, 8) = wrap_2pi(atan2(gsh(3, p), gsh(2, p)))
+          scal(p, 8) = wrap_2pi(atan2(gsh(3, p), gsh(2, p))) * ascale
         end if
         ! elevation: the frame's x axis is R_hat, so el = asin(-d_hat . R_hat) = psi - pi/2
-        scal(p, 9) = ang(b, 4) - pi/2
+        scal(p, 9) = (ang(b, 4) - pi/2) * ascale
       end do
     end do
   end subroutine scan_spectrum

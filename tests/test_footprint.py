@@ -187,6 +187,58 @@ def test_threads_give_identical_results(spheroid):
         assert np.array_equal(getattr(a, name), getattr(b, name), equal_nan=True)
 
 
+
+_ANGLES = ("zenith_centric", "zenith_detic", "emission", "nadir_angle", "position_angle", "azimuth", "elevation")
+
+
+def test_degrees_from_the_kernel_equal_radians_scaled_afterwards(spheroid):
+    # the kernel multiplies each angle by 180/pi as its last operation; the
+    # expectation is the kernel in radians (ascale 1) scaled by NumPy afterwards,
+    # which is what footprint() did before: bit for bit equal
+    rng = np.random.default_rng(5)
+    R, v = _random_states(rng, 6)
+    fp = pi.footprint(spheroid, R, v, threads=1)
+    frames = pi.spacecraft_frame(R, v, method="state").reshape(-1, 3, 3)
+    idx, d, gsh, scal, _ = F._run_kernel(spheroid, R, frames, np.zeros(len(R)), F.ODYSSEY_AREA_KM2, 1, ascale=1.0)
+    assert len(fp) == len(idx) > 6 * 1000
+    deg = scal[:, 2:] * (180.0 / math.pi)
+    for k, name in enumerate(_ANGLES):
+        assert np.array_equal(getattr(fp, name), deg[:, k], equal_nan=True), name
+    assert np.array_equal(fp.d, d.T) and np.array_equal(fp.gsh, gsh.T)
+    assert np.array_equal(fp.distance, scal[:, 0]) and np.array_equal(fp.solid_angle, scal[:, 1])
+    # radians: the zenith angle on the spheroid stays within [0, pi/2) above the horizon
+    assert 0.0 <= scal[:, 2].min() and scal[:, 2].max() < math.pi / 2
+
+
+def test_reused_output_buffers(spheroid):
+    rng = np.random.default_rng(8)
+    R, v = _random_states(rng, 8)
+    fresh = pi.footprint(spheroid, R, v, threads=1)
+    first = pi.footprint(spheroid, R[:4], v[:4], threads=1)
+    # a smaller call writes into the earlier result's memory ...
+    again = pi.footprint(spheroid, R[4:], v[4:], threads=1, out=fresh)
+    assert np.shares_memory(again.emission, fresh._buffers.scal) and np.shares_memory(again.d, fresh._buffers.d)
+    ref = pi.footprint(spheroid, R[4:], v[4:], threads=1)
+    for name in F._PAIR_FIELDS:
+        assert np.array_equal(getattr(again, name), getattr(ref, name), equal_nan=True), name
+    # ... a larger one takes new memory, with the same results as a fresh call
+    big = pi.footprint(spheroid, R, v, threads=2, out=first)
+    assert not np.shares_memory(big.emission, first._buffers.scal)
+    ref = pi.footprint(spheroid, R, v, threads=1)
+    for name in F._PAIR_FIELDS:
+        assert np.array_equal(getattr(big, name), getattr(ref, name), equal_nan=True), name
+    # the flux cone's result (a subset) keeps the raw pass's memory for the next call
+    # only when reuse was asked for
+    q = pi.footprint(spheroid, R[:2], v[:2], flux_fraction=0.5, out=big)
+    assert q._buffers is big._buffers and 0 < len(q) < len(ref) and q.visible.all()
+    assert getattr(pi.footprint(spheroid, R[:2], v[:2], flux_fraction=0.5), "_buffers") is None
+    with pytest.raises(TypeError, match="out must be a FootprintResult"):
+        pi.footprint(spheroid, R, v, out=np.empty(10))
+    # an empty footprint, fresh and into reused memory: zeta = 1 takes only a cell
+    # centre exactly at nadir, and (0 N, 0 E) is a cell corner, not a centre
+    for prev in (None, big):
+        e = pi.footprint(spheroid, [4000.0, 0.0, 0.0], [0.0, 0.0, 1.0], zeta=1.0, out=prev)
+        assert len(e) == 0 and e.d.shape == (0, 3) and e.emission.shape == (0,) and e.counts().tolist() == [0]
 # ---------------------------------------------------------------------------------------------
 # position angle
 # ---------------------------------------------------------------------------------------------

@@ -884,7 +884,29 @@ class FootprintResult:
         return xr.Dataset(data, coords=coords, attrs=attrs)
 
 
-def _run_kernel(cells: CellTable, R: np.ndarray, frames: np.ndarray, zeta: np.ndarray, area: float, threads: int):
+class _PairBuffers:
+    """Flat output memory for ``capacity`` pairs, filled in place by the kernel and viewed
+    in the results' final layout (Fortran order of the kernel's arrays, no copies)."""
+
+    def __init__(self, capacity: int):
+        self.capacity = int(capacity)
+        c = max(self.capacity, 1)
+        self.idx = np.empty(2 * c, dtype=np.int32)
+        self.d = np.empty(3 * c)
+        self.gsh = np.empty(3 * c)
+        self.scal = np.empty(9 * c)
+        self.visible = np.empty(c, dtype=bool)
+
+    def views(self, m: int):
+        """(idx (m, 2), d (3, m), gsh (3, m), scal (m, 9)) Fortran-ordered views of the first m pairs."""
+        return (self.idx[:2 * m].reshape((m, 2), order="F"), self.d[:3 * m].reshape((3, m), order="F"),
+                self.gsh[:3 * m].reshape((3, m), order="F"), self.scal[:9 * m].reshape((m, 9), order="F"))
+
+
+def _run_kernel(cells: CellTable, R: np.ndarray, frames: np.ndarray, zeta: np.ndarray, area: float, threads: int,
+                ascale: float = 1.0, buffers: "_PairBuffers | None" = None):
+    """Both kernel passes; returns (idx, d, gsh, scal, buffers). The angles come out times
+    ``ascale`` (180/pi: degrees). ``buffers`` is reused when it holds enough pairs."""
     from . import _core
 
     cd = math.radians(cells.cell_deg)
@@ -897,12 +919,17 @@ def _run_kernel(cells: CellTable, R: np.ndarray, frames: np.ndarray, zeta: np.nd
     if len(R) > 1:
         np.cumsum(counts[:-1], out=offsets[1:])
     m = int(counts.sum())
+    if buffers is None or buffers.capacity < m:
+        buffers = _PairBuffers(m)
+    idx, d, gsh, scal = buffers.views(m)
+    if m == 0:                      # nothing to fill (f2py refuses zero-size in-place arrays)
+        return idx, d, gsh, scal, buffers
     fr = np.ascontiguousarray(frames)
-    idx, d, gsh, scal, status, stat = _core.core_footprint_fill(
+    status, stat = _core.core_footprint_fill(
         R.T, fr.transpose(2, 1, 0), zeta, cells.nrow, cells.ncol, cd, u.T, cells.radius, rmin, rtop,
-        cells.normal_detic.T, cells.normal.T, area, offsets, max(m, 0), threads=threads)
+        cells.normal_detic.T, cells.normal.T, area, ascale, offsets, m, idx, d, gsh, scal, threads=threads)
     _raise_status(stat, status, R, cells)
-    return idx, d, gsh, scal
+    return idx, d, gsh, scal, buffers
 
 
 def _raise_status(stat, status, R, cells):
@@ -920,7 +947,7 @@ def _raise_status(stat, status, R, cells):
 def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta: float | None = None,
               flux_fraction: float | None = None, occlusion: bool = False, airmass_model: str | None = "chapman",
               H: float | None = None, threads: int | None = None, occlusion_tol: float | None = None,
-              progress=None) -> FootprintResult:
+              progress=None, out: FootprintResult | None = None) -> FootprintResult:
     """Footprint geometry of N spectra over a cell table (DESIGN section 10).
 
     Parameters
@@ -959,6 +986,11 @@ def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta:
         bit-identical for any count.
     progress : callable, optional
         ``progress(done, total)`` during the occlusion rays.
+    out : FootprintResult, optional
+        A result of an earlier call whose output memory is reused when it holds
+        enough pairs (else new memory is taken): for chunked processing of many
+        spectra, it saves the first touch of fresh memory on every call. The
+        earlier result's arrays are overwritten and must not be used again.
 
     Returns
     -------
@@ -972,6 +1004,8 @@ def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta:
     """
     if not isinstance(cells, CellTable):
         raise TypeError(f"cells must be a planet_intersect.CellTable, got {type(cells).__name__}")
+    if out is not None and not isinstance(out, FootprintResult):
+        raise TypeError(f"out must be a FootprintResult of an earlier call, got {type(out).__name__}")
     R = _vectors(R, "R")
     _nonzero(R, "R")
     area = _real(area, "area", lo=0.0, lo_open=True)
@@ -1000,16 +1034,24 @@ def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta:
     else:
         z = 0.0 if zeta is None else _real(zeta, "zeta", lo=-1.0, hi=1.0)
         zeta_arr = np.full(len(R), z)
-    idx, d, gsh, scal = _run_kernel(cells, R, frames, zeta_arr, area, int(threads))
-    scal[:, 2:] *= 180.0 / math.pi            # columns of a Fortran-ordered array: one block, in place, no copies
+    # angles in degrees from the kernel (the same rounding as multiplying the radians afterwards)
+    idx, d, gsh, scal, buffers = _run_kernel(cells, R, frames, zeta_arr, area, int(threads), ascale=180.0 / math.pi,
+                                             buffers=getattr(out, "_buffers", None))
+    visible = buffers.visible[:len(idx)]
+    visible.fill(True)
     res = FootprintResult(
         spectrum=idx[:, 0], cell=idx[:, 1], d=d.T, distance=scal[:, 0], solid_angle=scal[:, 1],
         zenith_centric=scal[:, 2], zenith_detic=scal[:, 3], emission=scal[:, 4],
         nadir_angle=scal[:, 5], position_angle=scal[:, 6], gsh=gsh.T, azimuth=scal[:, 7],
-        elevation=scal[:, 8], visible=np.ones(len(idx), dtype=bool), zeta=zeta_arr,
+        elevation=scal[:, 8], visible=visible, zeta=zeta_arr,
         cells=cells, airmass_model=airmass_model, H=H)
+    # the output memory goes with the result for a later footprint(out=res) (not a dataclass
+    # field); the flux cone's result is a smaller copy: it keeps the raw pass's memory only
+    # when the caller asked for reuse (out=), so that it does not hold ~10 times its size
+    res._buffers = buffers
     if flux_fraction is not None:
         res = _flux_cone(res, q)
+        res._buffers = buffers if out is not None else None
     if occlusion:
         res.visible = occluded_not(cells, R, res, tol=occlusion_tol, threads=int(threads), progress=progress)
     return res
