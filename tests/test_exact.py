@@ -76,7 +76,7 @@ def test_exact_read_modes_threads_and_limb_outputs(rough_file, dem_read_mode):
 
 
 def test_exact_mode_rejects_bad_method(rough):
-    with pytest.raises(ValueError, match="method must be one of 'stepping', 'exact', got"):
+    with pytest.raises(ValueError, match=r"method \(for a planetary DEM\) must be one of 'stepping', 'exact', got"):
         pi.intersect(rough, [5000.0, 0, 0], [-1.0, 0, 0], method="fast")
 
 

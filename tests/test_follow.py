@@ -280,7 +280,7 @@ def test_dispatch_and_errors(city):
     with pytest.raises(ValueError, match="threads must be"):
         pi.intersect(dsm, s, d, threads=-1)
     dem = pi.DEM.from_array(np.full((180, 360), 3390.0))
-    with pytest.raises(ValueError, match="method must be 'stepping' or 'exact'"):
+    with pytest.raises(ValueError, match=r"method \(for a planetary DEM\) must be one of 'stepping', 'exact', got 'following'"):
         pi.intersect(dem, [5000.0, 0, 0], [-1.0, 0, 0], method="following")
     with pytest.raises(TypeError, match=r"\['outside'\] apply to a GeodeticDSM only"):
         pi.intersect(dem, [5000.0, 0, 0], [-1.0, 0, 0], outside="ellipsoid")

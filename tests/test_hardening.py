@@ -258,7 +258,7 @@ def test_from_array_parameters_of_the_wrong_type(kwargs, exc, match):
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    (dict(method=[]), "method must be one of 'stepping', 'exact', got"),
+    (dict(method=[]), r"method \(for a planetary DEM\) must be one of 'stepping', 'exact', got"),
     (dict(tangent=None), "tangent must be one of"),
     (dict(io=3), "io must be one of"),
 ])

@@ -248,7 +248,7 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
     step_mode = _check_mode(step_mode, "step_mode")
     dem_read_mode = _check_mode(dem_read_mode, "dem_read_mode")
     _choice(io, "io", ("records", "mmap"))
-    _choice(method, "method", tuple(_METHOD))
+    _choice(method, "method (for a planetary DEM)", tuple(_METHOD))
     _choice(tangent, "tangent", tuple(_TANGENT))
     check_threads(threads, 1)
     s = as_vectors(s, "s")
