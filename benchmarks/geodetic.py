@@ -128,7 +128,8 @@ def measure(spec: dict) -> dict:
     while True:
         t0 = time.perf_counter()
         if method == "floor":
-            ellipsoid_floor(s, l, grid["a"], grid["a"] * (1 - grid["f"]))
+            t_floor = ellipsoid_floor(s, l, grid["a"], grid["a"] * (1 - grid["f"]))
+            hits = int(np.isfinite(t_floor).sum())            # rays that meet the bare ellipsoid
         else:
             res = pi.intersect(dsm, s, l, method=method, threads=threads)
             steps, hits = float(np.mean(res.nsteps)), int(np.sum(res.hit))
@@ -145,8 +146,12 @@ def measure(spec: dict) -> dict:
     return out
 
 
-def run_isolated(spec: dict) -> dict:
-    proc = subprocess.run([sys.executable, __file__, "--one", json.dumps(spec)], capture_output=True, text=True)
+def run_isolated(spec: dict, timeout: float = 300.0) -> dict:
+    try:
+        proc = subprocess.run([sys.executable, __file__, "--one", json.dumps(spec)], capture_output=True, text=True,
+                              timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {"error": f"did not finish within {timeout:.0f} s"}
     if proc.returncode != 0:
         return {"error": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else f"exit {proc.returncode}"}
     return json.loads(proc.stdout.strip().splitlines()[-1])
