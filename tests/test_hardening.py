@@ -460,3 +460,19 @@ def test_detector_los_tiny_and_huge_vectors_are_directions():
         warnings.simplefilter("error")
         got = pi.detector_los([0.0, 0.0, -1e308], [1e-200, 0.0, 0.0], 3, 3, 0.01, 0.01)
     np.testing.assert_array_equal(got, ref)
+
+
+def test_dsm_inputs_follow_the_same_rules():
+    """The geodetic DSM path checks its inputs with the planetary path's helpers."""
+    dsm = pi.GeodeticDSM.from_array(np.zeros((3, 3)), 0.001, 0.0, -0.001, 0.001)
+    s = pi.geodetic_to_ecef(0.0, 0.001, 700e3)
+    assert len(pi.intersect(dsm, np.zeros((0, 3)), [0, 0, -1.0])) == 0
+    with pytest.raises(TypeError, match="s: must be real numbers"):
+        pi.intersect(dsm, s + 0j, -s)
+    with pytest.raises(ValueError, match=r"threads must be an integer in 0\.\.1024"):
+        pi.intersect(dsm, s, -s, threads=100000)
+    with pytest.raises(ValueError, match="semi-major axes from the centre"):
+        pi.intersect(dsm, s * 1e16, -s)
+    tiny = pi.intersect(dsm, s, -s * 1e-300, method="exact")
+    ref = pi.intersect(dsm, s, -s, method="exact")
+    assert tiny.hit[0] and np.allclose(tiny.p, ref.p, rtol=1e-14)

@@ -415,21 +415,21 @@ class DSMResult:
         return cols
 
 
-def _vectors(v, name: str) -> np.ndarray:
-    try:
-        v = np.asarray(v, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name}: not an array of numbers ({exc})") from None
-    shape = v.shape
-    if v.ndim == 1:
-        v = v[None, :]
-    if v.ndim != 2 or v.shape[1] != 3:
-        raise ValueError(f"{name}: expected shape (3,) or (N, 3), got {shape}")
-    bad = ~np.isfinite(v).all(axis=1)
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise ValueError(f"{name}[{k}] has NaN or Inf components: {v[k]}")
-    return v
+def _empty_result() -> "DSMResult":
+    """A DSMResult of zero rays (the fields' kinds as for any other)."""
+    out = {}
+    for fld in fields(DSMResult):
+        if fld.name in ("p", "event_p", "ellipsoid_p"):
+            out[fld.name] = np.zeros((0, 3))
+        elif fld.name in ("hit", "on_ellipsoid"):
+            out[fld.name] = np.zeros(0, dtype=bool)
+        elif fld.name == "status":
+            out[fld.name] = np.zeros(0, dtype=np.int8)
+        elif fld.name == "nsteps":
+            out[fld.name] = np.zeros(0, dtype=np.int32)
+        else:
+            out[fld.name] = np.zeros(0)
+    return DSMResult(**out)
 
 
 def intersect_dsm(dsm: GeodeticDSM, s, l, method: str = "following", threads: int | None = None,
@@ -462,25 +462,29 @@ def intersect_dsm(dsm: GeodeticDSM, s, l, method: str = "following", threads: in
         focal point at or below the surface (names ``s`` and the ray).
     """
     from . import _core
+    from .intersect import FAR_LIMIT, _choice, _unit_scaled, as_vectors, check_threads
 
     if not isinstance(dsm, GeodeticDSM):
         raise TypeError(f"dsm must be a planet_intersect.GeodeticDSM, got {type(dsm).__name__}")
-    if method not in _DSM_METHODS:
-        raise ValueError(f"method for a GeodeticDSM must be 'following', 'exact' or 'iterative', got {method!r}")
-    if outside not in ("none", "ellipsoid"):
-        raise ValueError(f"outside must be 'none' or 'ellipsoid', got {outside!r}")
-    if threads is None:
-        threads = 0
-    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 0:
-        raise ValueError(f"threads must be a non-negative integer (0 or None: all cores), got {threads!r}")
-    s = _vectors(s, "s")
-    l = _vectors(l, "l")
-    zero = ~(np.einsum("ij,ij->i", l, l) > 0)
-    if zero.any():
-        raise ValueError(f"l[{int(np.argmax(zero))}] has zero length")
+    # the same checks as for a planetary DEM (intersect.py): one set of rules for every surface
+    _choice(method, "method (for a GeodeticDSM)", tuple(_DSM_METHODS))
+    _choice(outside, "outside", ("none", "ellipsoid"))
+    check_threads(threads, 1)
+    s = as_vectors(s, "s")
+    l = as_vectors(l, "l")
     if len(s) != len(l) and len(s) != 1 and len(l) != 1:
         raise ValueError(f"s and l: {len(s)} positions do not broadcast against {len(l)} directions")
-    n = max(len(s), len(l))
+    with np.errstate(over="ignore"):
+        far = np.einsum("ij,ij->i", s, s) > (FAR_LIMIT * dsm.a) ** 2
+    if far.any():
+        k = int(np.argmax(far))
+        raise ValueError(f"s[{k}] = {s[k]} is farther than {FAR_LIMIT:g} semi-major axes from the centre "
+                         "(the line's position at the body would be lost to rounding)")
+    l = _unit_scaled(l)
+    n = 0 if min(len(s), len(l)) == 0 else max(len(s), len(l))
+    if n == 0:
+        return _empty_result()
+    threads = check_threads(threads, n)
     s = np.ascontiguousarray(np.broadcast_to(s, (n, 3)))
     l = np.ascontiguousarray(np.broadcast_to(l, (n, 3)))
     pyr, meta = dsm.pyramid()
@@ -489,6 +493,12 @@ def intersect_dsm(dsm: GeodeticDSM, s, l, method: str = "following", threads: in
         _DSM_METHODS[method], int(threads))
     if stat != 0:
         raise ValueError(f"intersect: the core rejected method {method!r} (status {stat})")
+    bad = np.flatnonzero((status == DSMStatus.BAD_POSITION) | (status == DSMStatus.BAD_DIRECTION))
+    if bad.size:                              # the checks above should have caught it: never silent
+        k = int(bad[0])
+        which = "s" if status[k] == DSMStatus.BAD_POSITION else "l"
+        raise ValueError(f"{which}[{k}] = {(s if which == 's' else l)[k]} cannot be used by the core "
+                         f"({DSM_RAY_STATUS[int(status[k])]}; {bad.size} ray(s) affected)")
     inside = np.flatnonzero(status == DSMStatus.INSIDE)
     if inside.size:
         k = int(inside[0])
