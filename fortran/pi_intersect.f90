@@ -119,7 +119,7 @@ contains
     real(dp) :: d_hit
     !> the point the line is anchored at for the search and the tangent point:
     !> s itself, or for a far spacecraft a point on the line near the planet
-    real(dp) :: s0(3)
+    real(dp) :: s0(3), shift
 
     nan = ieee_value(0.0_dp, ieee_quiet_nan)
     res%p = nan; res%lat = nan; res%lon = nan; res%radius = nan
@@ -168,11 +168,15 @@ contains
       d0 = sn*cos_psi0 - half                     ! eq. 21
       dm = sn*cos_psi0 + half                     ! eq. 22
       if (sn > far_anchor*dem%rmax .and. d0 > 0.0_dp) then
-        ! [note 19] a far spacecraft: anchor the line where it enters r_max
-        s0 = s + d0*l
-        dm = dm - d0
-        d0 = 0.0_dp
-      end if
+        ! [note 19] a far spacecraft: anchor the line just before it enters r_max,
+        ! farther out than the anchor's own rounding (~eps |s|), so that the anchor
+        ! is outside the surface whatever the rounding (the fuzz harness found hits
+        ! placed at an anchor that had rounded to inside a DEM whose rmax is its top)
+        shift = max(d0 - max(1.0e-9_dp*dem%rmax, 16.0_dp*epsilon(1.0_dp)*sn), 0.0_dp)
+        s0 = s + shift*l
+        dm = dm - shift
+        d0 = 0.0_dp              ! search from the anchor itself: d0's own rounding (~eps |s|)
+      end if                     ! could otherwise put the start past the entry, inside the surface
       exact = .false.
       if (present(method) .and. present(pyr)) exact = method == method_exact
       if (dm > 0.0_dp .and. exact .and. s0(1) == 0.0_dp .and. s0(2) == 0.0_dp .and. &

@@ -146,6 +146,16 @@ def _check_parameters(ppd, rmax, f, re, where):
         raise DEMError(f"{where}: equatorial radius re must be in [{RADIUS_MIN:g}, {RADIUS_MAX:g}], got {re}")
 
 
+def _check_rmax_tight(rmax: float, top: float, where: str) -> None:
+    """rmax may exceed the largest radius, but not by more than a factor 2: the
+    search starts on the r_max sphere and a spacecraft's distance is judged
+    against it, so a loose rmax (1e20 for a body of radius 1) would put the whole
+    search far from the surface and defeat the far-spacecraft rules (note 19)."""
+    if rmax > 2.0 * top:
+        raise DEMError(f"{where}: rmax = {rmax:g} is more than twice the largest radius {top:g}; "
+                       "give an rmax close to the largest radius")
+
+
 def _row_blocks(radii):
     """(first row, float64 block) over an array, or over a file as (path, dtype, shape):
     a file is read with plain reads, so checking it never maps it into memory."""
@@ -186,7 +196,8 @@ def _check_radii(radii, rmax: float, where: str) -> float:
 
 def _float32_up(x: np.ndarray) -> np.ndarray:
     """float64 values as the nearest float32 at or above each."""
-    f = x.astype(np.float32)
+    with np.errstate(over="ignore"):          # radii beyond float32 (up to 1e100) become +inf: still a bound
+        f = x.astype(np.float32)
     low = f.astype(np.float64) < x
     f[low] = np.nextafter(f[low], np.float32(np.inf))
     return f
@@ -270,7 +281,8 @@ class DEM:
                 f"DEM data {dem}: size {size} bytes, but the header (ppd = {ppd}, {h['dtype']}) "
                 f"needs {nlat} x {nlon} x {itemsize} = {expected} bytes")
         dtype = np.dtype(h["dtype"]).newbyteorder(_BYTEORDERS[h["byteorder"]])
-        _check_radii((dem, dtype, (nlat, nlon)), h["rmax"], where=f"DEM data {dem}")
+        top = _check_radii((dem, dtype, (nlat, nlon)), h["rmax"], where=f"DEM data {dem}")
+        _check_rmax_tight(h["rmax"], top, f"DEM header {hdr}")
         radii = np.memmap(dem, dtype=dtype, mode="r", shape=(nlat, nlon))
         out = cls(radii, ppd, h["rmax"], h["f"], h["re"], path=hdr, header=h)
         if out._identity[2] != expected:                    # changed between the check and the map
@@ -306,6 +318,7 @@ class DEM:
         ppd = arr.shape[0] // 180
         top = _check_radii(arr, rmax, where="radii")
         rmax = top if rmax is None else rmax
+        _check_rmax_tight(rmax, top, where)
         _check_parameters(ppd, rmax, f, re_, where=where)
         return cls(arr, ppd, rmax, f, re_, path=None)
 
@@ -439,7 +452,8 @@ class DEM:
             coarse[...] = pairs[:, 0::2]
             odd = pairs[:, 1::2]
             np.maximum(coarse[:, :odd.shape[1]], odd, out=coarse[:, :odd.shape[1]])
-        np.nextafter(data, np.float32(np.inf), out=data)     # one float32 ulp up: rounding can never make it low
+        with np.errstate(over="ignore"):
+            np.nextafter(data, np.float32(np.inf), out=data)     # one float32 ulp up: rounding can never make it low
         self._pyramid = (data, meta)
         return self._pyramid
 

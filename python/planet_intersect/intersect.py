@@ -260,7 +260,10 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
     if far.any():
         k = int(np.argmax(far))
         big = np.abs(s[k]).max()
-        raise ValueError(f"s[{k}] = {s[k]} is {big * np.linalg.norm(s[k] / big) / dem.rmax:.3g} rmax from the centre: "
+        with np.errstate(over="ignore"):
+            dist = big * np.linalg.norm(s[k] / big) / dem.rmax
+        dist = f"{dist:.3g}" if np.isfinite(dist) else "more than 1e300"
+        raise ValueError(f"s[{k}] = {s[k]} is {dist} rmax from the centre: "
                          f"at most {FAR_LIMIT:g} rmax (a unit vector's direction is resolved to ~1e-16, so "
                          "farther away the line's position at the planet is lost to rounding)")
     l = _unit_scaled(l)
