@@ -468,7 +468,12 @@ def cli_case(r: R, seed: int) -> dict:
     return case
 
 
-GENERATORS = {"intersect": intersect_case, "radius": radius_case, "detector": detector_case,
+def selftest_case(r: R, seed: int) -> dict:
+    """The harness's own test (never in MIX): now and then a real segfault in the worker."""
+    return {"op": "selftest", "action": "segfault" if r.chance(0.02) else "none", "names": []}
+
+
+GENERATORS = {"selftest": selftest_case, "intersect": intersect_case, "radius": radius_case, "detector": detector_case,
               "from_array": from_array_case, "mutate": mutate_case, "read": header_case, "cli_run": cli_case}
 
 
