@@ -184,6 +184,16 @@ def _check_result(dem, s, l, res, method):
                 fail(f"{where}: {name} = {getattr(res, name)[k]!r} for a miss (NaN expected)")
         if not _allnan(res.p[k]):
             fail(f"{where}: p = {res.p[k].tolist()} for a miss (NaN expected)")
+        # a ray that comes closer to the centre than the lowest radius of the DEM must hit it
+        # (the surface is a radius field over the sphere of directions, never below its lowest node)
+        lu = l[k] / np.abs(l[k]).max()
+        lu = lu / _norm(lu)
+        if s[k] @ lu < 0:
+            closest = _norm(np.cross(s[k], lu))
+            slack = 1e-9 * rmax_dem + 8 * np.finfo(float).eps * _norm(s[k])   # (the DEM's radii, not rmax)
+            if closest < rmin_dem - slack:
+                fail(f"{where}: a miss whose line passes {closest!r} from the centre, below the DEM's lowest "
+                     f"radius {rmin_dem!r} (by more than {slack:.3g}): it must hit")
         if status[k] == 1:
             need = ["tangent_altitude"] + ([] if irregular else ["tangent_lat", "tangent_lon", "tangent_height"])
             for name in need:
