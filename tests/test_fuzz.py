@@ -74,3 +74,56 @@ def test_harness_catches_a_crash_and_a_hang(session):
     bad = dict(ok, args=dict(ok["args"], nh=0), names=["nh"])
     out = session.worker.call(bad)
     assert out.kind == "error" and judge(bad, out) is None, out.detail
+
+
+# ---------------------------------------------------------------------------- bulk mode
+#: API calls of the CI bulk run (tests/fuzzing/bulk.py: the same cases, checks and
+#: judgement without hypothesis, in batches); ``./dev fuzz --bulk --calls N`` for more
+BULK_CALLS = int(20000 * SCALE)
+
+
+def test_bulk_pools_are_those_of_the_strategies():
+    """The bulk generator draws from the same value pools as the hypothesis strategies."""
+    from fuzzing import bulk, strategies
+
+    assert repr(bulk.EXTREME) == repr(strategies.EXTREME)
+    assert bulk.INTERSECT_NAMES == strategies.INTERSECT_NAMES
+    assert bulk.EOLS == strategies.EOLS
+    assert set(bulk.MIX) == set(strategies.TARGETS)
+    # deterministic: case i of batch b under a seed is always the same case
+    a, b = bulk.gen_case(7, 3, 11), bulk.gen_case(7, 3, 11)
+    assert repr(a) == repr(b) and a["op"] in bulk.MIX
+
+
+def test_bulk_fuzz():
+    """No crash, hang, unclear error or wrong result over BULK_CALLS API calls
+    drawn by the bulk generator (fixed seed: the same cases on every run)."""
+    from fuzzing.bulk import MIX, BulkRun
+    from fuzzing.harness import describe
+
+    run = BulkRun(seed=20260101, calls=BULK_CALLS, jobs=1, batch=250,
+                  timeout=float(os.environ.get("PI_FUZZ_TIMEOUT", "20")), log=lambda m: None).run()
+    assert not run.failures, "\n\n".join(f"=== {sig}\n{describe(c, f)}" for sig, (c, f) in run.failures.items())
+    assert run.api_calls >= BULK_CALLS
+    assert run.restarts == 0
+    # every operation ran, valid cases succeeded and bad ones were refused
+    assert set(run.by_op) == set(MIX), run.by_op
+    assert run.kinds.get("ok", 0) > run.cases // 2 and run.kinds.get("error:ValueError", 0) > 0, run.kinds
+
+
+def test_bulk_catches_a_crash_and_names_the_case():
+    """A segfault inside a batch: the batch is replayed one case at a time, the
+    crashing case is reported with its (seed, batch, index), the worker is
+    restarted and the run goes on."""
+    from fuzzing.bulk import BulkRun, gen_case
+
+    mix = {"selftest": 0.5, "detector": 0.5}
+    run = BulkRun(seed=5, calls=300, jobs=1, batch=60, mix=mix, timeout=20, log=lambda m: None).run()
+    crashes = [(c, f) for c, f in run.failures.values() if f.startswith("CRASH")]
+    assert crashes and all("SIGSEGV" in f for _, f in crashes)
+    case, _ = crashes[0]
+    seed, b, i = case["bulk_id"]
+    assert gen_case(seed, b, i, mix)["action"] == "segfault"
+    # the first segfaulting case of that batch, none before it
+    assert all(gen_case(seed, b, k, mix).get("action") != "segfault" for k in range(i))
+    assert run.restarts >= len(crashes) and run.api_calls >= 300

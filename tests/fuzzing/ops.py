@@ -83,8 +83,19 @@ def dem_kwargs(spec: dict) -> dict:
     return kw
 
 
+#: the bulk mode (bulk.py) sets a dict here: DEMs are then reused across cases by spec
+#: (a DEM is immutable, so a cached one behaves as a fresh one); None: a new DEM per case
+DEM_CACHE = None
+
+
 def make_dem(spec: dict) -> pi.DEM:
-    return pi.DEM.from_array(dem_array(spec), **dem_kwargs(spec))
+    if DEM_CACHE is None:
+        return pi.DEM.from_array(dem_array(spec), **dem_kwargs(spec))
+    key = repr(sorted(spec.items()))
+    dem = DEM_CACHE.get(key)
+    if dem is None:
+        dem = DEM_CACHE[key] = pi.DEM.from_array(dem_array(spec), **dem_kwargs(spec))
+    return dem
 
 
 def write_pair(stem: Path, header: bytes, data: bytes) -> Path:
@@ -173,6 +184,16 @@ def _check_result(dem, s, l, res, method):
                 fail(f"{where}: {name} = {getattr(res, name)[k]!r} for a miss (NaN expected)")
         if not _allnan(res.p[k]):
             fail(f"{where}: p = {res.p[k].tolist()} for a miss (NaN expected)")
+        # a ray that comes closer to the centre than the lowest radius of the DEM must hit it
+        # (the surface is a radius field over the sphere of directions, never below its lowest node)
+        lu = l[k] / np.abs(l[k]).max()
+        lu = lu / _norm(lu)
+        if s[k] @ lu < 0:
+            closest = _norm(np.cross(s[k], lu))
+            slack = 1e-9 * rmax_dem + 8 * np.finfo(float).eps * _norm(s[k])   # (the DEM's radii, not rmax)
+            if closest < rmin_dem - slack:
+                fail(f"{where}: a miss whose line passes {closest!r} from the centre, below the DEM's lowest "
+                     f"radius {rmin_dem!r} (by more than {slack:.3g}): it must hit")
         if status[k] == 1:
             need = ["tangent_altitude"] + ([] if irregular else ["tangent_lat", "tangent_lon", "tangent_height"])
             for name in need:
@@ -394,6 +415,7 @@ def op_detector(case, tmp: Path):
         fail("detector_los: rows are not finite unit vectors")
     if nh % 2 and nv % 2:
         l0 = np.asarray(a["l0"], dtype=np.float64)
+        l0 = l0 / np.abs(l0).max()                  # (a subnormal l0's squared norm underflows to 0)
         c = los[(nv // 2) * nh + nh // 2]
         if not np.allclose(c, l0 / np.linalg.norm(l0), rtol=0, atol=1e-12):
             fail(f"detector_los: the centre pixel {c.tolist()} is not l0")

@@ -91,7 +91,7 @@ def main() -> int:
     except (ValueError, OSError):
         pass
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-    from fuzzing import ops                       # imports numpy and planet_intersect once
+    from fuzzing import bulk, ops                 # imports numpy and planet_intersect once
 
     if os.environ.get("PI_FUZZ_FPE_TRAP") == "1":
         trap_invalid_in_core()
@@ -104,7 +104,7 @@ def main() -> int:
         except EOFError:
             return 0
         try:
-            reply = ("ok", ops.run_case(case))
+            reply = ("ok", bulk.run_batch(case) if case["op"] == "bulk" else ops.run_case(case))
         except ops.PropertyViolation as exc:
             reply = ("violation", str(exc))
         except ops.CLIFailure as exc:
