@@ -40,6 +40,10 @@ MAX_PPD = 1_000_000
 #: squares and products of lengths, with spacecraft up to 1e15 rmax away, stay far
 #: from overflow and underflow (docs/paper-notes.md, note 19).
 RADIUS_MIN, RADIUS_MAX = 1e-100, 1e100
+#: Smallest radius / largest radius accepted: the paper's steps are proportional
+#: to the distance from the centre (eq. 26), so a DEM spanning more would need
+#: more steps than any budget, or steps below the rounding of the distance.
+SPAN_MIN = 1e-6
 #: Largest header file read (the Fortran reader's limit too).
 _HDR_MAX_BYTES = 1_000_000
 
@@ -174,7 +178,7 @@ def _row_blocks(radii):
 def _check_radii(radii, rmax: float, where: str) -> float:
     """Check finite radii in [RADIUS_MIN, RADIUS_MAX] not above rmax, block by block;
     return the maximum."""
-    top = -math.inf
+    top, low = -math.inf, math.inf
     for j, block in _row_blocks(radii):
         bad = ~np.isfinite(block)
         if bad.any():
@@ -189,8 +193,13 @@ def _check_radii(radii, rmax: float, where: str) -> float:
             raise DEMError(f"{where}: radius at row {j + jj}, column {ii} is {block[jj, ii]:g}, outside "
                            f"[{RADIUS_MIN:g}, {RADIUS_MAX:g}] (a no-data value? fill it before making a DEM)")
         top = max(top, float(block.max()))
+        low = min(low, float(block.min()))
     if rmax is not None and top > rmax:
         raise DEMError(f"{where}: rmax = {rmax} is below the largest radius {top}")
+    if low < top * SPAN_MIN:
+        raise DEMError(f"{where}: radii span {low:g} .. {top:g}; they must lie within a factor "
+                       f"{1 / SPAN_MIN:g} of each other (a spike or no-data value? the search steps "
+                       "in proportion to the distance from the centre: note 19)")
     return top
 
 

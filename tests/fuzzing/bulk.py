@@ -356,7 +356,7 @@ def header_case(r: R, seed: int) -> dict:
         why.append("a byte-order mark (either outcome acceptable)")
     n = 64800 * ppd * ppd
     dt = np.dtype(dtype).newbyteorder("<" if order == "little" else ">")
-    base = rmax * r.pick([1.0, 0.99, 0.5])
+    base = rmax * r.pick([1.0, 0.99, 0.6])            # rmax at most twice the largest radius
     values = np.full(n, base, dtype=np.float64)
     bad_value = r.pick([math.nan, math.inf, 0.0, -1.0, rmax * 1.01, 1e-300, DBL_MAX, FLT_MAX]) if r.chance(0.15) else None
     if bad_value is not None:
@@ -364,7 +364,8 @@ def header_case(r: R, seed: int) -> dict:
     with np.errstate(over="ignore"):
         stored = values.astype(dt)
     back = stored.astype(np.float64)
-    if not (np.isfinite(back).all() and (back >= 1e-100).all() and back.max() <= min(rmax, 1e100)):
+    if not (np.isfinite(back).all() and (back >= 1e-100).all() and back.max() <= min(rmax, 1e100)
+            and rmax <= 2.0 * back.max()):
         why.append(f"a stored radius of {bad_value if bad_value is not None else back.max()!r} (rmax {rmax!r}, {dtype})")
     data = stored.tobytes()
     size = r.pick(["short", "long", "empty", "ppd2"]) if r.chance(0.1) else "exact"

@@ -238,7 +238,8 @@ def op_from_array(case, tmp: Path):
     a = np.asarray(dem.radii, dtype=np.float64)
     if not np.array_equal(a, radii.astype(np.float64)):
         fail("DEM.from_array: radii differ from the array given")
-    if not (np.isfinite(a).all() and (a >= 1e-100).all() and a.max() <= 1e100 and dem.rmax >= a.max()):
+    if not (np.isfinite(a).all() and (a >= 1e-100).all() and a.max() <= 1e100 and dem.rmax >= a.max()
+            and a.min() >= 1e-6 * a.max()):
         fail(f"DEM.from_array accepted radii in [{a.min()!r}, {a.max()!r}] with rmax {dem.rmax!r}")
     # the DEM must not follow later changes to the caller's array
     before = dem.radius([0.0, 45.0, -89.9], [0.5, 100.0, 200.0])

@@ -328,7 +328,7 @@ def header_cases(draw):
     # the data: what the header says, with valid radii or one bad value
     n = 64800 * ppd * ppd
     dt = np.dtype(dtype).newbyteorder("<" if order == "little" else ">")
-    base = rmax * draw(st.sampled_from([1.0, 0.99, 0.5]))
+    base = rmax * draw(st.sampled_from([1.0, 0.99, 0.6]))   # rmax at most twice the largest radius
     values = np.full(n, base, dtype=np.float64)
     bad_value = draw(weighted(st.none(), st.sampled_from([math.nan, math.inf, 0.0, -1.0, rmax * 1.01, 1e-300,
                                                            DBL_MAX, FLT_MAX]), 0.15))
@@ -338,7 +338,8 @@ def header_cases(draw):
         stored = values.astype(dt)
     back = stored.astype(np.float64)          # what the file holds (float32 rounds: 1e-3 is stored above 1e-3)
     # the accepted range of radii (docs/dem-format.md): finite, in [1e-100, 1e100], <= rmax
-    if not (np.isfinite(back).all() and (back >= 1e-100).all() and back.max() <= min(rmax, 1e100)):
+    if not (np.isfinite(back).all() and (back >= 1e-100).all() and back.max() <= min(rmax, 1e100)
+            and rmax <= 2.0 * back.max()):
         why.append(f"a stored radius of {bad_value if bad_value is not None else back.max()!r} "
                    f"(rmax {rmax!r}, {dtype})")
     data = stored.tobytes()
