@@ -217,12 +217,17 @@ def test_a_file_that_shrinks_after_read_is_a_dem_error(tmp_path):
 
 @pytest.mark.parametrize("method", ["stepping", "exact"])
 def test_a_ray_down_a_spike_to_the_centre_ends(method):
-    """One node at the smallest radius accepted (1e-100) under a unit sphere: a ray
-    aimed straight down the spike passes within 1e-100 of the centre, where the
-    paper's steps shrink with the distance from the centre (eq. 26) and would
-    never get past it. The loop ends: a hit beyond, or status UNRESOLVED."""
+    """One node at the deepest radius accepted (1e-6 of the largest; a node at
+    1e-100 is now refused, checked first) under a unit sphere: a ray aimed
+    straight down the spike passes close to the centre, where the paper's steps
+    (eq. 26, proportional to |g|) shrink geometrically. The loop ends: a hit
+    beyond, or status UNRESOLVED. (With a spike at 1e-100 the old loop never ended.)"""
+    deep = np.ones((180, 360))
+    deep[90, 0] = 1e-100
+    with pytest.raises(pi.DEMError, match="must lie within a factor"):
+        pi.DEM.from_array(deep)
     r = run_child(f"""
-        radii = np.ones((180, 360)); radii[90, 0] = 1e-100
+        radii = np.ones((180, 360)); radii[90, 0] = 1.0000001e-6
         dem = pi.DEM.from_array(radii)
         u = np.array([np.cos(np.radians(0.5))**2, np.cos(np.radians(0.5)) * np.sin(np.radians(0.5)),
                       np.sin(np.radians(0.5))])
