@@ -24,6 +24,7 @@ import numpy as np
 
 from ._status import DSM_RAY_STATUS, DSMError, DSMStatus
 from .geodetic import WGS84_A, WGS84_F, _wrap180, check_ellipsoid, ecef_to_geodetic
+from .intersect import RayTable
 
 __all__ = ["GeodeticDSM", "DSMResult", "DSMError", "DSMStatus", "DSM_RAY_STATUS", "intersect_dsm"]
 
@@ -358,7 +359,7 @@ class GeodeticDSM:
 
 
 @dataclass
-class DSMResult:
+class DSMResult(RayTable):
     """Per-ray results of ``intersect(dsm, ...)``; arrays of length N, vectors (N, 3).
 
     Angles in degrees (latitudes geodetic, longitudes in [-180, 180)), lengths
@@ -386,33 +387,12 @@ class DSMResult:
     ellipsoid_lon: np.ndarray
     ellipsoid_distance: np.ndarray
 
-    def __len__(self) -> int:
-        return len(self.status)
+    #: what to_xarray() writes as the Dataset's "angles" attribute
+    ANGLES = "degrees; latitudes geodetic, longitudes east in [-180, 180)"
 
-    def to_xarray(self):
-        """The results as an :class:`xarray.Dataset` with dimensions ``ray`` and ``xyz``."""
-        import xarray as xr
-
-        data = {}
-        for fld in fields(self):
-            value = getattr(self, fld.name)
-            data[fld.name] = (("ray", "xyz") if value.ndim == 2 else ("ray",), value)
-        ds = xr.Dataset(data, coords={"ray": np.arange(len(self)), "xyz": ["x", "y", "z"]})
-        ds.attrs["status_codes"] = "; ".join(f"{k}: {v}" for k, v in DSM_RAY_STATUS.items())
-        ds.attrs["angles"] = "degrees; latitudes geodetic, longitudes east in [-180, 180)"
-        return ds
-
-    def to_table(self) -> dict:
-        """Flat columns (vectors split into _x/_y/_z) for CSV export."""
-        cols = {}
-        for fld in fields(self):
-            value = getattr(self, fld.name)
-            if value.ndim == 2:
-                for k, axis in enumerate("xyz"):
-                    cols[f"{fld.name}_{axis}"] = value[:, k]
-            else:
-                cols[fld.name] = value
-        return cols
+    @staticmethod
+    def _status_items():
+        return DSM_RAY_STATUS.items()
 
 
 def _empty_result() -> "DSMResult":

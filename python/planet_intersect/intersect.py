@@ -24,8 +24,48 @@ _METHOD = {"stepping": 0, "exact": 1}
 _NO_PYRAMID = (np.zeros(1, dtype=np.float32), np.zeros((1, 3), dtype=np.int32))
 
 
+class RayTable:
+    """Export of a per-ray result dataclass (arrays of length N, vectors (N, 3)),
+    shared by the planetary and the geodetic results. Subclasses set ANGLES and
+    _status_items()."""
+
+    ANGLES = ""
+
+    @staticmethod
+    def _status_items():
+        return ()
+
+    def __len__(self) -> int:
+        return len(self.status)
+
+    def to_xarray(self):
+        """The results as an :class:`xarray.Dataset` with dimensions ``ray`` and ``xyz``."""
+        import xarray as xr
+
+        data = {}
+        for fld in fields(self):
+            value = getattr(self, fld.name)
+            data[fld.name] = (("ray", "xyz") if value.ndim == 2 else ("ray",), value)
+        ds = xr.Dataset(data, coords={"ray": np.arange(len(self)), "xyz": ["x", "y", "z"]})
+        ds.attrs["status_codes"] = "; ".join(f"{k}: {v}" for k, v in self._status_items())
+        ds.attrs["angles"] = self.ANGLES
+        return ds
+
+    def to_table(self) -> dict:
+        """Flat columns (vectors split into _x/_y/_z) for CSV export."""
+        cols = {}
+        for fld in fields(self):
+            value = getattr(self, fld.name)
+            if value.ndim == 2:
+                for k, axis in enumerate("xyz"):
+                    cols[f"{fld.name}_{axis}"] = value[:, k]
+            else:
+                cols[fld.name] = value
+        return cols
+
+
 @dataclass
-class IntersectResult:
+class IntersectResult(RayTable):
     """Per-ray results of :func:`intersect`; arrays of length N (vectors (N, 3)).
 
     Angles in degrees, lengths in the DEM's units; NaN where a quantity does not
@@ -50,34 +90,12 @@ class IntersectResult:
     status: np.ndarray  #: per-ray code, see :class:`RayStatus`
     nsteps: np.ndarray  #: test points evaluated along each ray
 
-    def __len__(self) -> int:
-        return len(self.status)
+    #: what to_xarray() writes as the Dataset's "angles" attribute
+    ANGLES = "degrees; latitudes planetocentric, longitudes east in [0, 360)"
 
-    def to_xarray(self):
-        """The results as an :class:`xarray.Dataset` with dimensions ``ray`` and ``xyz``."""
-        import xarray as xr
-
-        data = {}
-        for fld in fields(self):
-            value = getattr(self, fld.name)
-            dims = ("ray", "xyz") if value.ndim == 2 else ("ray",)
-            data[fld.name] = (dims, value)
-        ds = xr.Dataset(data, coords={"ray": np.arange(len(self)), "xyz": ["x", "y", "z"]})
-        ds.attrs["status_codes"] = "; ".join(f"{k}: {v}" for k, v in _ray_status_items())
-        ds.attrs["angles"] = "degrees; latitudes planetocentric, longitudes east in [0, 360)"
-        return ds
-
-    def to_table(self) -> dict:
-        """Flat columns (vectors split into _x/_y/_z) for CSV export."""
-        cols = {}
-        for fld in fields(self):
-            value = getattr(self, fld.name)
-            if value.ndim == 2:
-                for k, axis in enumerate("xyz"):
-                    cols[f"{fld.name}_{axis}"] = value[:, k]
-            else:
-                cols[fld.name] = value
-        return cols
+    @staticmethod
+    def _status_items():
+        return _ray_status_items()
 
 
 def _ray_status_items():
