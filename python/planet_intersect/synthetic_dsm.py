@@ -20,7 +20,8 @@ import numpy as np
 
 from .geodetic import WGS84_A, WGS84_F, geodetic_to_ecef
 
-__all__ = ["jacksboro_base", "building_scene", "pushbroom_rays", "airborne_rays", "metre_steps",
+__all__ = ["jacksboro_base", "building_scene", "pushbroom_rays", "airborne_rays", "metre_steps", "paper_scene",
+           "oblique_pushbroom", "PAPER_BUILDINGS",
            "JACKSBORO_GEOID"]
 
 #: Geoid undulation (EGM96) near the Jacksboro DEM, metres: N = -32 m over the
@@ -187,3 +188,131 @@ def _from_above(target, lat, lon, height, zen_deg, az):
     dist = height / np.cos(np.radians(zen_deg))
     s = target + dist[:, None] * back
     return s, -back
+
+
+# ------------------------------------------------- Shin & Park's experiment (Fig. 3-4)
+#: the four buildings of :func:`paper_scene`: polygon vertices in metres (east, north)
+#: from the scene's south-west corner, roof height above the ground's highest
+#: point under the footprint (m), and roof colour (RGB)
+PAPER_BUILDINGS = (
+    (((120, 330), (230, 330), (230, 400), (170, 400), (170, 450), (120, 450)), 25.0, (200, 60, 50)),   # L-shaped
+    (((300, 300), (360, 300), (360, 470), (300, 470)), 60.0, (60, 90, 200)),                           # slab
+    (((150, 120), (230, 100), (260, 180), (180, 210)), 40.0, (230, 200, 40)),                          # rotated block
+    (((370, 120), (420, 90), (470, 120), (470, 180), (420, 210), (370, 180)), 90.0, (240, 240, 240)),  # hexagonal tower
+)
+
+
+def _texture(nr: int, nc: int, rng) -> np.ndarray:
+    """A recognisable, deterministic ground texture (RGB, 0-255): fields of
+    smooth random tone, a road grid every 100 m, and fine grain."""
+    from scipy import ndimage
+
+    base = ndimage.gaussian_filter(rng.normal(size=(nr, nc)), 12.0)
+    base = (base - base.min()) / max(np.ptp(base), 1e-12)
+    grain = ndimage.gaussian_filter(rng.normal(size=(nr, nc)), 1.0) * 0.15
+    tone = np.clip(0.35 + 0.45 * base + grain, 0, 1)
+    rgb = np.stack([90 + 80 * tone, 110 + 100 * tone, 60 + 60 * tone], axis=-1)        # greenish fields
+    rows, cols = np.arange(nr)[:, None], np.arange(nc)[None, :]
+    road = ((rows % 100) < 6) | ((cols % 100) < 6)
+    rgb[road] = (150, 150, 150)
+    stripe = road & ((((rows % 100) == 3) & (cols % 12 < 6)) | (((cols % 100) == 3) & (rows % 12 < 6)))
+    rgb[stripe] = (250, 250, 250)                                                      # dashed centre lines
+    return rgb
+
+
+def paper_scene(size: int = 640, seed: int = 7, lat0: float = 36.52, lon0: float = -84.16,
+                base: str = "jacksboro") -> dict:
+    """Shin & Park's test scene (their Fig. 3), rebuilt: a 1 m ortho-photo on a
+    coarse base DEM with four polygon buildings of different heights on top.
+
+    The base DEM is the Jacksboro 3-arc-second DEM (matplotlib's sample data;
+    ``base="flat"`` for height 0) resampled bilinearly to 1 m cells plus its
+    geoid undulation (heights above WGS-84). The buildings
+    (:data:`PAPER_BUILDINGS`, laid out on 512 m, scaled into the middle 80 % of
+    ``size``) are flat-roofed polygons. The
+    ortho-photo is synthetic and deterministic: textured fields, a road grid
+    with dashed centre lines, and one distinct colour per roof.
+
+    Returns dict(heights, ground, ortho (size, size, 3) uint8, roof_id,
+    lat_first, lon_first, dlat, dlon, a, f, buildings) with row 0 in the
+    north; ``ground`` is the bare base terrain (for the roof/ground classes).
+    """
+    from matplotlib.path import Path as MPath
+
+    if not isinstance(size, (int, np.integer)) or size < 64:
+        raise ValueError(f"size must be an integer >= 64 (metres), got {size!r}")
+    rng = np.random.default_rng(seed)
+    dlat, dlon = metre_steps(lat0)
+    n = int(size)
+    lat_first = lat0 + (n - 1) * dlat                                   # north-west pixel centre
+    lats = lat_first - np.arange(n) * dlat
+    lons = lon0 + np.arange(n) * dlon
+    if base == "jacksboro":
+        b = jacksboro_base()
+        la, lo = np.meshgrid(lats, lons, indexing="ij")
+        ground = _bilinear(b, la, lo) + b["geoid"]
+    elif base == "flat":
+        ground = np.zeros((n, n))
+    else:
+        raise ValueError(f"base must be 'jacksboro' or 'flat', got {base!r}")
+    h = ground.copy()
+    roof = np.zeros((n, n), dtype=np.int32)
+    rgb = _texture(n, n, rng)
+    scale = 0.8 * n / 512.0            # the layout fills the middle 80 % of the scene
+    offset = 0.1 * n
+    east = (np.arange(n) + 0.5)[None, :].repeat(n, 0)
+    north = (n - 1 - np.arange(n) + 0.5)[:, None].repeat(n, 1)
+    pts = np.column_stack([east.ravel(), north.ravel()])
+    buildings = []
+    for k, (poly, height, colour) in enumerate(PAPER_BUILDINGS, start=1):
+        verts = np.array(poly, dtype=np.float64) * scale + offset
+        inside = MPath(verts).contains_points(pts).reshape(n, n)
+        top = float(ground[inside].max()) + height
+        h[inside] = top
+        roof[inside] = k
+        shade = 0.9 + 0.1 * ((np.arange(n)[:, None] // 4 + np.arange(n)[None, :] // 4) % 2)  # roof tiles
+        rgb[inside] = (np.array(colour)[None, :] * shade[inside][:, None])
+        buildings.append(dict(vertices_m=verts, height=height, roof=top, colour=colour))
+    return dict(heights=h, ground=ground, ortho=np.clip(np.rint(rgb), 0, 255).astype(np.uint8), roof_id=roof,
+                lat_first=float(lat_first), lon_first=float(lon0), dlat=-dlat, dlon=dlon, a=WGS84_A, f=WGS84_F,
+                buildings=buildings)
+
+
+def oblique_pushbroom(scene: dict, zenith: float = 9.0, azimuth: float = 90.0, altitude: float = 685e3,
+                      margin: int = 0, step: float = 1.0):
+    """A pushbroom over ``scene`` whose every line views the ground at one zenith
+    angle from one azimuth (the sensor's side): line k images the row of ground
+    points at the scene's row k (north to south), pixel m the column m, with the
+    focal point ``altitude`` m above the row's centre and displaced toward
+    ``azimuth`` (degrees clockwise from north) so that the row centre is seen at
+    ``zenith`` degrees. ``azimuth=90``: the sensor is east of the scene, looking
+    west (Shin & Park's north-bound satellite scanning from East to West).
+    Returns (s (nlines, 3), l (nlines, npixels, 3)) for ``pi.Pushbroom``.
+
+    ``step`` (cells) spaces lines and pixels; ``margin`` cells are left out on
+    each side. The directions aim at the bare ellipsoid+ground height of the
+    row centre, not at the terrain: a pixel's ray hits what is in front.
+    """
+    h = np.asarray(scene["heights"])
+    nr, nc = h.shape
+    a, f = scene.get("a", WGS84_A), scene.get("f", WGS84_F)
+    rows = np.arange(margin, nr - margin, step)
+    cols = np.arange(margin, nc - margin, step)
+    ground = np.asarray(scene.get("ground", h))
+    href = float(np.nanmedian(ground))
+    z, az = np.radians(zenith), np.radians(azimuth)
+    s_all, l_all = [], []
+    lon_c = scene["lon_first"] + 0.5 * (nc - 1) * scene["dlon"]
+    for r in rows:
+        lat = scene["lat_first"] + r * scene["dlat"]
+        tgt = geodetic_to_ecef(np.full(len(cols), lat), scene["lon_first"] + cols * scene["dlon"], href, a, f)
+        c = geodetic_to_ecef(lat, lon_c, href, a, f)
+        la, lo = np.radians(lat), np.radians(lon_c)
+        up = np.array([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)])
+        e = np.array([-np.sin(lo), np.cos(lo), 0.0])
+        nvec = np.cross(up, e)
+        back = np.cos(z) * up + np.sin(z) * (np.cos(az) * nvec + np.sin(az) * e)
+        s = c + (altitude / max(np.cos(z), 1e-9)) * back
+        s_all.append(s)
+        l_all.append(tgt - s)
+    return np.array(s_all), np.array(l_all)
