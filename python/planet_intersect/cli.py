@@ -8,6 +8,7 @@
     planet-intersect import-mola OUT (--radius IMG | --topography IMG --areoid IMG) [--overwrite]
     planet-intersect fetch-mola DEST [--product megr90n000cb|megr90n000eb]
     planet-intersect footprint (--states CSV | --kernels K... --times FILE) [--dem HDR | --mola IMG] [--zeta Z]
+    planet-intersect simulate [--dsm DSM --ortho ORTHO (--oblique Z,AZ | --orbit ... | --geometry NPZ)] [--out DIR]
 
 Errors print one line on standard error and exit with status 2.
 """
@@ -534,6 +535,184 @@ def _add_footprint_parser(sub) -> None:
 # --- end footprint ------------------------------------------------------------------------------
 
 
+# --- simulate (Shin & Park image simulation) ----------------------------------------------------
+def _sensor_from_args(args, dsm, scene):
+    """The sensor of a ``simulate`` run: a geometry file, an oblique pushbroom
+    over the DSM, or a built-in orbit."""
+    from .sensors import FrameCamera, Pushbroom
+    from .synthetic_dsm import oblique_pushbroom
+
+    if args.geometry:
+        path = Path(args.geometry)
+        if not path.is_file():
+            raise CLIError(f"--geometry {path}: no such file")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                d = {k: z[k] for k in z.files}
+        except Exception as exc:  # noqa: BLE001
+            raise CLIError(f"--geometry {path}: cannot be read as .npz ({exc})") from None
+        if "l" not in d or ("s" not in d and "position" not in d):
+            raise CLIError(f"--geometry {path}: needs arrays s (nlines, 3) and l (nlines, npixels, 3) "
+                           "for a pushbroom, or position (3,) and l (nrows, ncols, 3) for a frame camera")
+        try:
+            return Pushbroom(d["s"], d["l"]) if "s" in d else FrameCamera(d["position"], d["l"])
+        except (TypeError, ValueError) as exc:
+            raise CLIError(f"--geometry {path}: {exc}") from None
+    if args.orbit:
+        return _orbit_sensor(args)
+    zen, az = args.oblique
+    if not 0 <= zen < 80:
+        raise CLIError(f"--oblique: zenith {zen} outside [0, 80) degrees")
+    grid = scene if scene is not None else dict(heights=dsm.heights, lat_first=dsm.lat_first,
+                                                lon_first=dsm.lon_first, dlat=dsm.dlat, dlon=dsm.dlon,
+                                                a=dsm.a, f=dsm.f)
+    margin = args.margin if args.margin is not None else (grid["heights"].shape[0] // 10 if scene else 0)
+    if args.step <= 0:
+        raise CLIError(f"--step must be positive, got {args.step}")
+    return Pushbroom(*oblique_pushbroom(grid, zenith=zen, azimuth=az, altitude=args.altitude,
+                                        margin=margin, step=args.step))
+
+
+def _orbit_sensor(args):
+    from .sensors import Pushbroom
+
+    if not hasattr(Pushbroom, "from_orbit"):
+        raise CLIError("--orbit: this build has no built-in orbit model")
+    if args.target is None:
+        raise CLIError("--orbit needs --target LAT,LON (the point the centre pixel looks at)")
+    return Pushbroom.from_orbit(altitude=args.altitude, inclination=args.inclination,
+                                ascending=not args.descending, target=tuple(args.target), nlines=args.lines,
+                                npixels=args.pixels, ifov=args.ifov, roll=args.roll, pitch=args.pitch,
+                                yaw=args.yaw)
+
+
+def _pair(text: str) -> tuple[float, float]:
+    try:
+        a, b = (float(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected two numbers A,B, got {text!r}") from None
+    if not (np.isfinite(a) and np.isfinite(b)):
+        raise argparse.ArgumentTypeError(f"expected finite numbers, got {text!r}")
+    return a, b
+
+
+def _simulate(args) -> int:
+    from . import GeodeticDSM, OrthoImage, simulate_image
+    from .sim_run import fig4, paper_experiment, write_outputs, wrong_surface
+
+    _require("scipy", "sim", "simulate")
+    _require("matplotlib", "plot", "simulate")
+    if args.threads is not None and args.threads < 0:
+        raise CLIError(f"--threads must be >= 0, got {args.threads}")
+    if args.block_lines < 1:
+        raise CLIError(f"--block-lines must be >= 1, got {args.block_lines}")
+    t0 = time.perf_counter()
+    if args.dsm is None:
+        if args.ortho is not None or args.geometry is not None:
+            raise CLIError("--ortho and --geometry need --dsm (without --dsm the built-in paper scene is used)")
+        if not 128 <= args.size <= 8192:
+            raise CLIError(f"--size must be in [128, 8192] metres, got {args.size}")
+        with _run_dir(Path(args.out)) as out:
+            exp = paper_experiment(size=args.size, methods=("exact", "iterative"), zenith=args.oblique[0],
+                                   threads=args.threads, progress=not args.quiet)
+            counts = fig4(exp, out / "fig4.png")
+            written = [out / "fig4.png"]
+            written += write_outputs(exp["sims"]["exact"], out, "exact")
+            written += write_outputs(exp["sims"]["iterative"], out, "iterative", netcdf=False, geotiff=False)
+            lines = [f"{k}: {v}" for k, v in counts.items()]
+            (out / "counts.txt").write_text("\n".join(lines) + "\n")
+            written.append(out / "counts.txt")
+        ex = exp["sims"]["exact"]
+        print(f"simulate: Shin & Park's experiment, {ex.shape[0]} x {ex.shape[1]} pixels, "
+              f"{time.perf_counter() - t0:.1f} s\n  exact: {counts['exact_roofs']:,} roof, {counts['exact_walls']:,} "
+              f"wall pixels, {counts['occluded_ortho_pixels']:,} occluded ortho pixels\n  iterative: "
+              f"{counts['iterative_not_converged']:,} not converged, {counts['iterative_wrong_surface']:,} on the "
+              f"wrong surface\n  wrote {', '.join(str(p) for p in written)}")
+        return 0
+    if args.ortho is None:
+        raise CLIError("--dsm needs --ortho (the ortho-image to drape)")
+    dsm = GeodeticDSM.read(args.dsm, interpolation=args.interpolation)
+    ortho = OrthoImage.read(args.ortho)
+    sensor = _sensor_from_args(args, dsm, None)
+    with _run_dir(Path(args.out)) as out:
+        sim = simulate_image(dsm, ortho, sensor, method=args.method, walls=args.walls, shading=args.shading,
+                             sun=args.sun, ambient=args.ambient, fill=args.fill, occlusion=not args.no_occlusion,
+                             threads=args.threads, block_lines=args.block_lines, progress=not args.quiet,
+                             out=out / "backplanes" if args.memmap else None)
+        written = write_outputs(sim, out, "simulated")
+        if args.compare_iterative:
+            it = simulate_image(dsm, ortho, sensor, method="iterative", occlusion=False, threads=args.threads,
+                                block_lines=args.block_lines)
+            written += write_outputs(it, out, "iterative", netcdf=False, geotiff=False)
+            print(f"  iterative: {int((~it.valid).sum()):,} pixels without a hit, "
+                  f"{int(wrong_surface(it, sim).sum()):,} on the wrong surface")
+    c = sim.counts()
+    print(f"simulate: {sim.shape[0]} x {sim.shape[1]} pixels of {args.ortho} on {args.dsm} ({args.method}), "
+          f"{time.perf_counter() - t0:.1f} s, {sim.meta['pixels_per_second']:,.0f} px/s\n  "
+          + ", ".join(f"{k} {v:,}" for k, v in c.items()) + f"\n  wrote {', '.join(str(p) for p in written)}")
+    return 0
+
+
+def _add_simulate_parser(sub) -> None:
+    s = sub.add_parser(
+        "simulate", help="simulate an oblique image of an ortho-photo draped on a DSM (Shin & Park)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Simulate the image a sensor takes of an ortho-photo draped on a DSM: every pixel's ray is\n"
+                    "followed to its first hit and the ortho-photo's value there becomes the pixel's value.\n\n"
+                    "Without --dsm: Shin & Park's experiment on the built-in scene (Jacksboro base DEM, four\n"
+                    "buildings, synthetic ortho-photo), exact and iterative methods, and their Fig. 4.\n\n"
+                    "A complete run from files:\n"
+                    "  planet-intersect simulate --dsm dsm.tif --ortho ortho.tif --oblique 9,90 --out sims\n"
+                    "    (a pushbroom viewing every DSM row at 9 deg zenith from the east, one pixel per cell)\n"
+                    "  planet-intersect simulate --dsm dsm.tif --ortho ortho.tif --orbit --target 36.6,-84.2 \\\n"
+                    "      --altitude 685000 --lines 2000 --pixels 2000 --ifov 8.4e-5 --roll -9 --out sims\n"
+                    "  planet-intersect simulate --dsm dsm.tif --ortho ortho.tif --geometry sensor.npz --out sims\n"
+                    "    (sensor.npz: s (nlines, 3) and l (nlines, npixels, 3) in ECR metres for a pushbroom,\n"
+                    "     or position (3,) and l (nrows, ncols, 3) for a frame camera)\n\n"
+                    "GeoTIFFs in a geographic CRS are read as they are; projected ones are warped to a\n"
+                    "geodetic grid. DSM heights must be above WGS-84 (add the geoid undulation if not).\n"
+                    "Outputs in a new run-NNN folder: simulated.png (the image), simulated_surface.png,\n"
+                    "simulated_occlusion.png, simulated.tif (image + backplanes in sensor geometry),\n"
+                    "simulated.nc (NetCDF of image, lat, lon, height, distance, incidence, surface, masks).")
+    s.add_argument("--dsm", help="DSM GeoTIFF or .npz (heights above WGS-84, metres)")
+    s.add_argument("--ortho", help="ortho-image GeoTIFF or .npz (one band or RGB)")
+    s.add_argument("--geometry", help=".npz with the sensor's rays (see above)")
+    s.add_argument("--oblique", type=_pair, default=(9.0, 90.0), metavar="ZENITH,AZIMUTH",
+                   help="pushbroom over the DSM grid viewing at ZENITH deg from AZIMUTH (deg from north; "
+                        "default 9,90: from the East)")
+    s.add_argument("--orbit", action="store_true", help="built-in Keplerian orbit (with --target, --altitude, ...)")
+    s.add_argument("--target", type=_pair, metavar="LAT,LON", help="--orbit: where the centre pixel looks")
+    s.add_argument("--altitude", type=float, default=685e3, help="sensor altitude in m (default 685 km)")
+    s.add_argument("--inclination", type=float, default=98.0, help="--orbit: inclination, deg (default 98)")
+    s.add_argument("--descending", action="store_true", help="--orbit: descending pass (default ascending)")
+    s.add_argument("--lines", type=int, default=1024, help="--orbit: image lines")
+    s.add_argument("--pixels", type=int, default=1024, help="--orbit: pixels per line")
+    s.add_argument("--ifov", type=float, default=8.4e-5,
+                   help="--orbit: instantaneous field of view per pixel, degrees (default 8.4e-5: 1 m at 685 km)")
+    s.add_argument("--roll", type=float, default=0.0, help="--orbit: roll, deg")
+    s.add_argument("--pitch", type=float, default=0.0, help="--orbit: pitch, deg")
+    s.add_argument("--yaw", type=float, default=0.0, help="--orbit: yaw, deg")
+    s.add_argument("--step", type=float, default=1.0, help="--oblique: DSM cells per pixel and line (default 1)")
+    s.add_argument("--margin", type=int, help="--oblique: DSM cells left out on each side")
+    s.add_argument("--method", choices=("exact", "following", "iterative"), default="exact")
+    s.add_argument("--interpolation", choices=("bilinear", "nearest"), help="DSM interpolation (default: the reader's)")
+    s.add_argument("--walls", choices=("interpolate", "ortho"), default="interpolate")
+    s.add_argument("--shading", choices=("none", "lambert"), default="none")
+    s.add_argument("--sun", type=_pair, metavar="AZIMUTH,ELEVATION", help="Sun direction for --shading lambert, deg")
+    s.add_argument("--ambient", type=float, default=0.0, help="ambient fraction for --shading lambert")
+    s.add_argument("--fill", type=float, default=0.0, help="value of pixels without a hit")
+    s.add_argument("--no-occlusion", action="store_true", help="skip the occlusion mask (one ray per ortho pixel)")
+    s.add_argument("--compare-iterative", action="store_true", help="also simulate with the iterative method")
+    s.add_argument("--memmap", action="store_true", help="keep the backplanes in memory-mapped files (huge images)")
+    s.add_argument("--block-lines", type=int, default=256, help="image lines per block (default 256)")
+    s.add_argument("--threads", type=int, help="OpenMP threads (default: all cores)")
+    s.add_argument("--size", type=int, default=640, help="without --dsm: the paper scene's size in metres")
+    s.add_argument("--quiet", action="store_true", help="no progress bar")
+    s.add_argument("--out", default="simulate-output", help="results go to a new run-NNN folder here")
+    s.set_defaults(func=_simulate)
+# --- end simulate -------------------------------------------------------------------------------
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="planet-intersect",
                                 description="Where lines of sight meet a planet's DEM (Teanby 2008 ray stepping).")
@@ -585,6 +764,7 @@ def _parser() -> argparse.ArgumentParser:
                       help="the folder of planet-intersect-legacy.pc, for PKG_CONFIG_PATH")
     c.set_defaults(func=_config)
     _add_footprint_parser(sub)
+    _add_simulate_parser(sub)
     return p
 
 
