@@ -35,7 +35,7 @@ def paper_experiment(size: int = 640, methods=("exact", "iterative"), zenith: fl
 def wrong_surface(sim, truth, tol: float = 0.5) -> np.ndarray:
     """Pixels that ``sim`` gave a hit whose distance along the ray differs from
     ``truth``'s (the exact first hit) by more than ``tol`` (m): a hit on the
-    wrong surface, e.g. the ground behind a roof (Shin & Park Fig. 1c)."""
+    wrong surface, e.g. the ground behind a roof (Shin & Park Fig. 1c) [sim note 7]."""
     both = np.asarray(sim.valid) & np.asarray(truth.valid)
     with np.errstate(invalid="ignore"):
         return both & (np.abs(np.asarray(sim.distance) - np.asarray(truth.distance)) > tol)

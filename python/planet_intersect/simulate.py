@@ -13,8 +13,7 @@ sides appear, the ground behind them is hidden.
   GeoTIFF or NetCDF.
 
 Choices where the paper is silent are numbered notes in
-``docs/shin-park-notes.md`` ("Image simulation"); the code marks them as
-``[sim note N]``.
+``docs/simulation-notes.md``; the code marks them as ``[sim note N]``.
 """
 
 from __future__ import annotations
@@ -446,7 +445,7 @@ def _opening_ground(dsm: GeodeticDSM, window_m: float) -> np.ndarray:
     """Bare-earth estimate from the DSM by a grey-scale morphological opening
     (erosion then dilation) with a square window about ``window_m`` wide: it
     removes every raised object narrower than the window and keeps planar
-    slopes exactly [sim note 4]."""
+    slopes exactly [sim note 1]."""
     from scipy import ndimage
 
     h = np.asarray(dsm.heights, dtype=np.float64)
@@ -549,7 +548,7 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
         edge above and at the wall's foot [sim note 2], or the ortho value at the
         hit's (lat, lon) as for any other surface.
     shading : "none" (default) or "lambert"
-        Lambertian shading: values times ``ambient + (1 - ambient) max(0, n.sun)``
+        Lambertian shading [sim note 4]: values times ``ambient + (1 - ambient) max(0, n.sun)``
         with n the surface normal used for ``local_incidence``.
     sun : (azimuth_deg, elevation_deg) or ECR vector (3,)
         Direction toward the Sun (needed for "lambert"); the angles are taken
@@ -655,7 +654,7 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
         blk = slice(k0, k1)
         shape2 = (k1 - k0, npx)
         status[blk] = res.status.reshape(shape2)
-        ok = res.hit                      # HIT (and HIT_UNCONVERGED: a hit, best estimate)
+        ok = res.hit                      # HIT (and HIT_UNCONVERGED: a hit, best estimate) [sim note 8]
         valid[blk] = ok.reshape(shape2)
         planes["lat"][blk] = res.lat.reshape(shape2)
         planes["lon"][blk] = res.lon.reshape(shape2)

@@ -286,7 +286,8 @@ def oblique_pushbroom(scene: dict, zenith: float = 9.0, azimuth: float = 90.0, a
     focal point ``altitude`` m above the row's centre and displaced toward
     ``azimuth`` (degrees clockwise from north) so that the row centre is seen at
     ``zenith`` degrees. ``azimuth=90``: the sensor is east of the scene, looking
-    west (Shin & Park's north-bound satellite scanning from East to West).
+    west (Shin & Park's north-bound satellite scanning from East to West;
+    zenith at the ground, not off-nadir at the satellite [sim note 6]).
     Returns (s (nlines, 3), l (nlines, npixels, 3)) for ``pi.Pushbroom``.
 
     ``step`` (cells) spaces lines and pixels; ``margin`` cells are left out on
