@@ -19,9 +19,10 @@ from __future__ import annotations
 import numpy as np
 
 from .geodetic import WGS84_A, WGS84_F, geodetic_to_ecef
+from .sensors import Sensor
 
 __all__ = ["jacksboro_base", "building_scene", "pushbroom_rays", "airborne_rays", "metre_steps", "paper_scene",
-           "oblique_pushbroom", "PAPER_BUILDINGS",
+           "oblique_pushbroom", "ObliqueScan", "PAPER_BUILDINGS",
            "JACKSBORO_GEOID"]
 
 #: Geoid undulation (EGM96) near the Jacksboro DEM, metres: N = -32 m over the
@@ -278,6 +279,57 @@ def paper_scene(size: int = 640, seed: int = 7, lat0: float = 36.52, lon0: float
                 buildings=buildings)
 
 
+class ObliqueScan(Sensor):
+    """A pushbroom over a scene grid whose every line views the ground at one
+    zenith angle from one azimuth, its rays made a block of lines at a time (a
+    :class:`~planet_intersect.sensors.Sensor`; see :func:`oblique_pushbroom`).
+    Nothing per pixel is stored, so an image of any size costs only its blocks."""
+
+    def __init__(self, scene: dict, zenith: float = 9.0, azimuth: float = 90.0, altitude: float = 685e3,
+                 margin: int = 0, step: float = 1.0):
+        h = np.asarray(scene["heights"])
+        nr, nc = h.shape
+        if not 0 <= zenith < 80:
+            raise ValueError(f"zenith must be in [0, 80) degrees, got {zenith}")
+        if not step > 0:
+            raise ValueError(f"step must be positive, got {step}")
+        if not altitude > 0:
+            raise ValueError(f"altitude must be positive, got {altitude}")
+        self.a, self.f = scene.get("a", WGS84_A), scene.get("f", WGS84_F)
+        self.rows = np.arange(margin, nr - margin, step, dtype=np.float64)
+        self.cols = np.arange(margin, nc - margin, step, dtype=np.float64)
+        if len(self.rows) == 0 or len(self.cols) == 0:
+            raise ValueError(f"margin {margin} leaves no line or pixel of a {nr} x {nc} grid")
+        self.lat_first, self.dlat = scene["lat_first"], scene["dlat"]
+        self.lon_first, self.dlon = scene["lon_first"], scene["dlon"]
+        self.href = float(np.nanmedian(np.asarray(scene.get("ground", h))))
+        self.lon_c = self.lon_first + 0.5 * (nc - 1) * self.dlon
+        self.zenith, self.azimuth, self.altitude = float(zenith), float(azimuth), float(altitude)
+        self.shape = (len(self.rows), len(self.cols))
+
+    def rays(self, k0: int = 0, k1: int | None = None):
+        k0, k1 = self._check_block(k0, self.nlines if k1 is None else k1)
+        rows = self.rows[k0:k1]
+        lat = self.lat_first + rows * self.dlat
+        npx = len(self.cols)
+        lons = self.lon_first + self.cols * self.dlon
+        tgt = geodetic_to_ecef(np.repeat(lat, npx), np.tile(lons, len(rows)), self.href, self.a, self.f)
+        c = geodetic_to_ecef(lat, np.full(len(rows), self.lon_c), self.href, self.a, self.f).reshape(-1, 3)
+        la, lo = np.radians(lat), np.radians(self.lon_c)
+        up = np.stack([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)], axis=1)
+        e = np.broadcast_to(np.array([-np.sin(lo), np.cos(lo), 0.0]), up.shape)
+        nvec = np.cross(up, e)
+        z, az = np.radians(self.zenith), np.radians(self.azimuth)
+        back = np.cos(z) * up + np.sin(z) * (np.cos(az) * nvec + np.sin(az) * e)
+        s = c + (self.altitude / np.cos(z)) * back
+        s = np.repeat(s, npx, axis=0)
+        return s, tgt.reshape(-1, 3) - s
+
+    def __repr__(self) -> str:
+        return (f"ObliqueScan({self.nlines} lines x {self.npixels} pixels, zenith {self.zenith} deg "
+                f"from azimuth {self.azimuth} deg)")
+
+
 def oblique_pushbroom(scene: dict, zenith: float = 9.0, azimuth: float = 90.0, altitude: float = 685e3,
                       margin: int = 0, step: float = 1.0):
     """A pushbroom over ``scene`` whose every line views the ground at one zenith
@@ -288,32 +340,14 @@ def oblique_pushbroom(scene: dict, zenith: float = 9.0, azimuth: float = 90.0, a
     ``zenith`` degrees. ``azimuth=90``: the sensor is east of the scene, looking
     west (Shin & Park's north-bound satellite scanning from East to West;
     zenith at the ground, not off-nadir at the satellite [sim note 6]).
-    Returns (s (nlines, 3), l (nlines, npixels, 3)) for ``pi.Pushbroom``.
+    Returns (s (nlines, 3), l (nlines, npixels, 3)) for ``pi.Pushbroom``;
+    :class:`ObliqueScan` gives the same rays a block at a time.
 
     ``step`` (cells) spaces lines and pixels; ``margin`` cells are left out on
-    each side. The directions aim at the bare ellipsoid+ground height of the
-    row centre, not at the terrain: a pixel's ray hits what is in front.
+    each side. The directions aim at the scene's median ground height, not at
+    the terrain: a pixel's ray hits what is in front.
     """
-    h = np.asarray(scene["heights"])
-    nr, nc = h.shape
-    a, f = scene.get("a", WGS84_A), scene.get("f", WGS84_F)
-    rows = np.arange(margin, nr - margin, step)
-    cols = np.arange(margin, nc - margin, step)
-    ground = np.asarray(scene.get("ground", h))
-    href = float(np.nanmedian(ground))
-    z, az = np.radians(zenith), np.radians(azimuth)
-    s_all, l_all = [], []
-    lon_c = scene["lon_first"] + 0.5 * (nc - 1) * scene["dlon"]
-    for r in rows:
-        lat = scene["lat_first"] + r * scene["dlat"]
-        tgt = geodetic_to_ecef(np.full(len(cols), lat), scene["lon_first"] + cols * scene["dlon"], href, a, f)
-        c = geodetic_to_ecef(lat, lon_c, href, a, f)
-        la, lo = np.radians(lat), np.radians(lon_c)
-        up = np.array([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)])
-        e = np.array([-np.sin(lo), np.cos(lo), 0.0])
-        nvec = np.cross(up, e)
-        back = np.cos(z) * up + np.sin(z) * (np.cos(az) * nvec + np.sin(az) * e)
-        s = c + (altitude / max(np.cos(z), 1e-9)) * back
-        s_all.append(s)
-        l_all.append(tgt - s)
-    return np.array(s_all), np.array(l_all)
+    scan = ObliqueScan(scene, zenith, azimuth, altitude, margin, step)
+    s, l = scan.rays()
+    nl, npx = scan.shape
+    return s.reshape(nl, npx, 3)[:, 0].copy(), l.reshape(nl, npx, 3)
