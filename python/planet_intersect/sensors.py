@@ -215,13 +215,18 @@ def _kepler_states(el: dict, dt: np.ndarray):
     """
     e = el["e"]
     m = el["m0"] + el["n"] * dt
-    ecc = np.where(np.full_like(m, e) < 0.8, m, np.pi) if e > 0 else m.copy()
-    if e > 0:                          # Newton on Kepler's equation E - e sin E = M; bounded
-        for _ in range(60):
-            d = (ecc - e * np.sin(ecc) - m) / (1.0 - e * np.cos(ecc))
+    if e > 0:                          # Newton on Kepler's equation E - e sin E = M, M reduced to [0, 2 pi)
+        turns = m - np.mod(m, 2 * np.pi)
+        mr = m - turns
+        ecc = mr.copy() if e < 0.8 else np.full_like(mr, np.pi)   # E0 = pi converges for any e < 1
+        for _ in range(60):            # bounded: quadratic convergence needs < 10 steps
+            d = (ecc - e * np.sin(ecc) - mr) / (1.0 - e * np.cos(ecc))
             ecc = ecc - d
-            if np.max(np.abs(d)) < 1e-15:
+            if not np.max(np.abs(d), initial=0.0) > 1e-15:
                 break
+        ecc = ecc + turns
+    else:
+        ecc = m.copy()
     sma, q = el["sma"], math.sqrt(1.0 - e * e)
     cE, sE = np.cos(ecc), np.sin(ecc)
     xp = np.stack([sma * (cE - e), sma * q * sE, np.zeros_like(cE)], axis=1)
@@ -254,7 +259,7 @@ def _elements(u0, raan, inc, altitude, e, argp, a, f, gm):
         la, lo, h = ecef_to_geodetic(r0 * d, a, f)
         step = (h - altitude) / float(d @ _normal(la, lo))
         r0 -= step
-        if abs(step) < 1e-9 * r0:
+        if abs(step) <= 1e-12 * r0:
             break
     nu0 = u0 - argp
     sma = r0 * (1.0 + e * math.cos(nu0)) / (1.0 - e * e)
@@ -306,7 +311,7 @@ def _ray_height_hit(s, l, h, a, f):
             return math.nan
         step = (hh - h) / slope
         r -= step
-        if abs(step) < 1e-10 * max(1.0, r):
+        if abs(step) <= 1e-12 * (abs(r) + a):
             break
     return r
 
@@ -505,8 +510,6 @@ class Pushbroom(Sensor):
                    a=WGS84_A, f=WGS84_F, gm=EARTH_GM, rotation_rate=EARTH_ROTATION_RATE) -> "Pushbroom":
         """A pushbroom camera on a Keplerian orbit about a rotating ellipsoid.
 
-        Geometry
-        --------
         *Time*: line k is acquired at ``t_k = (k - (nlines - 1)/2) * line_period``
         seconds after the reference time t_ref (the centre line; ``times``).
 
