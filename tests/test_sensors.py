@@ -434,3 +434,56 @@ def test_helpers_reject_bad_input():
         cam.footprint_corners(flat_dsm(45.0, 7.0, 0.1), method="fast")
     with pytest.raises(ValueError, match="pixels"):
         cam.pixel_rays([0], [3])
+
+
+# ---------------------------------------------------------------- other bodies, orientation details
+def test_mars_orbit_uses_the_given_body():
+    """Mars (a, f, GM, rotation): the period is 2 pi sqrt(r^3/GM_mars) and the
+    reference point sits at the requested areodetic height (pi.geodetic_to_ecef on Mars's ellipsoid)."""
+    a, f, gm, w = 3396190.0, 1 / 169.8, 4.282837e13, 7.088218e-5
+    pb = Pushbroom.from_orbit(altitude=300e3, inclination=93.0, npixels=1, ifov=0.01, lat=18.65, lon=-133.8,
+                              a=a, f=f, gm=gm, rotation_rate=w, nlines=3, line_period=60.0)
+    p_ref = pi.geodetic_to_ecef(18.65, -133.8, 300e3, a, f)
+    np.testing.assert_allclose(pb.s[1], p_ref, rtol=0, atol=1e-6)
+    r0 = np.linalg.norm(p_ref)
+    assert pb.orbit["period"] == pytest.approx(2 * math.pi * math.sqrt(r0 ** 3 / gm), rel=1e-12)
+    si = to_inertial(pb.s, pb.times, omega=w)
+    ang = math.acos(unit(si[2]) @ unit(si[1]))
+    assert ang == pytest.approx(math.sqrt(gm / r0 ** 3) * 60.0, rel=1e-10)
+
+
+def test_equatorial_orbit_and_retrograde_equatorial():
+    """i = 0 moves east at the orbit rate minus the Earth's; i = 180 moves west at both."""
+    for inc, sign in ((0.0, 1.0), (180.0, -1.0)):
+        pb = Pushbroom.from_orbit(altitude=700e3, inclination=inc, npixels=1, ifov=0.01, lat=0.0, lon=10.0,
+                                  nlines=3, line_period=10.0)
+        _, lon, _ = to_geodetic(pb.s)
+        n = math.sqrt(GM / np.linalg.norm(pb.s[1]) ** 3)
+        np.testing.assert_allclose(lon - 10.0, np.degrees((sign * n - WE) * pb.times), rtol=0, atol=1e-9)
+
+
+def test_horizontal_pinhole_falls_back_to_zenith_up():
+    """Looking due north horizontally, north cannot be the image's up: the zenith is,
+    so the top row looks higher than the bottom row; default north-up otherwise."""
+    p = pi.geodetic_to_ecef(45.0, 7.0, 100.0)
+    la, lo = math.radians(45.0), math.radians(7.0)
+    north = np.array([-math.sin(la) * math.cos(lo), -math.sin(la) * math.sin(lo), math.cos(la)])
+    cam = FrameCamera.pinhole(p, p + 1000.0 * north, (5, 5), 1.0)     # exactly along north: no projection left
+    assert np.isfinite(cam.l).all()
+    up = normal(45.0, 7.0)
+    top, bottom = cam.l[0, 2] @ up, cam.l[4, 2] @ up
+    assert top > bottom
+    assert abs(cam.axes[:, 0] @ np.array([-math.sin(math.radians(7)), math.cos(math.radians(7)), 0])) \
+        == pytest.approx(1.0, abs=1e-6)      # x_c (image right) is east when looking north
+
+
+def test_pixel_rays_validation():
+    cam = FrameCamera.nadir(45.0, 7.0, 1000.0, (3, 4), 1.0)
+    with pytest.raises(ValueError, match="lines"):
+        cam.pixel_rays([3], [0])
+    with pytest.raises(ValueError, match="one length"):
+        cam.pixel_rays([0, 1], [0])
+    with pytest.raises(TypeError, match="integers"):
+        cam.pixel_rays([0.5], [0])
+    with pytest.raises(ValueError, match=r"look_angles\[1\]"):
+        Pushbroom.from_orbit(**dict(GOOD, look_angles=[0.0, float("nan"), 1.0]))

@@ -491,7 +491,7 @@ class Pushbroom(Sensor):
 
     def _directions(self, k0, k1):
         # unit ECR directions of lines k0..k1-1: l[k, m] = M_k d_m (orbital frame x attitude x detector)
-        return np.einsum("kij,mj->kmi", self._m[k0:k1], self._d).reshape(-1, 3)
+        return np.matmul(self._d[None], self._m[k0:k1].transpose(0, 2, 1)).reshape(-1, 3)
 
     def rays(self, k0: int = 0, k1: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         k0, k1 = self._check_block(k0, self.nlines if k1 is None else k1)
@@ -632,9 +632,16 @@ class Pushbroom(Sensor):
                 raise ValueError(f"npixels * ifov: the outer pixels look {np.abs(psi).max():g} deg off the "
                                  "boresight (must stay below 90)")
         else:
-            psi = _array(look_angles, "look_angles", (npixels,), 1)
-            if (np.abs(psi) >= 90.0).any():
-                raise ValueError("look_angles must lie in (-90, 90) degrees")
+            try:
+                psi = np.array(look_angles, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise TypeError(f"look_angles must be an array of numbers, got {look_angles!r}") from None
+            if psi.shape != (npixels,):
+                raise ValueError(f"look_angles: expected shape ({npixels},) (npixels), got {psi.shape}")
+            bad = ~(np.abs(psi) < 90.0)                  # NaN included
+            if bad.any():
+                k = int(np.argmax(bad))
+                raise ValueError(f"look_angles[{k}] = {psi[k]}: must be finite and in (-90, 90) degrees")
         psi_r = np.radians(psi)
         det = np.column_stack([np.zeros(npixels), np.sin(psi_r), np.cos(psi_r)])
         att = _rz(yaw) @ _ry(pitch) @ _rx(roll)
