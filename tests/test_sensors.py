@@ -487,3 +487,20 @@ def test_pixel_rays_validation():
         cam.pixel_rays([0.5], [0])
     with pytest.raises(ValueError, match=r"look_angles\[1\]"):
         Pushbroom.from_orbit(**dict(GOOD, look_angles=[0.0, float("nan"), 1.0]))
+
+
+def test_yaw_turns_the_detector_line_clockwise_from_above():
+    """yaw = 0: the line's last pixel is right of the first (across track, +y);
+    yaw = 90: turned clockwise seen from above, the last pixel lies behind the first."""
+    kw = dict(altitude=700e3, inclination=60.0, npixels=3, ifov=1.0, lat=20.0, lon=0.0, nlines=3, line_period=0.1)
+    dsm = flat_dsm(20.0, 0.0, 3.0)
+    for yaw in (0.0, 90.0):
+        pb = Pushbroom.from_orbit(yaw=yaw, **kw)
+        res = pi.intersect(dsm, *pb.pixel_rays([1, 1], [0, 2]), method="exact")
+        d = res.p[1] - res.p[0]
+        flight = pb.s[2] - pb.s[0]
+        right = np.cross(flight, normal(20.0, 0.0))
+        if yaw == 0.0:
+            assert d @ unit(right) == pytest.approx(np.linalg.norm(d), rel=1e-3)
+        else:
+            assert d @ unit(flight) == pytest.approx(-np.linalg.norm(d), rel=1e-3)

@@ -32,7 +32,7 @@ Two angles are both called "viewing angle" in the literature:
 Earth curvature makes theta larger than alpha; on a sphere of radius R seen
 from altitude H, ``sin(theta) = (R + H) / R * sin(alpha)``
 (:func:`view_zenith_angle`, :func:`off_nadir_angle`). At 700 km, alpha = 8 deg
-gives theta = 8.90 deg.
+gives theta = 8.88 deg.
 """
 
 from __future__ import annotations
