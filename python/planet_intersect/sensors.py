@@ -339,10 +339,35 @@ class Sensor:
         return k0, k1
 
     def rays(self, k0: int = 0, k1: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The rays of image lines k0..k1-1.
+
+        Parameters
+        ----------
+        k0, k1 : int
+            First line and one past the last (default: all lines); 0 <= k0 <= k1 <= nlines.
+
+        Returns
+        -------
+        s, l : arrays ((k1 - k0) * npixels, 3)
+            Focal points and line-of-sight directions (ECR; units of the body's
+            semi-major axis for ``s``), row-major in (line, pixel). ``s`` may be
+            a read-only broadcast view.
+        """
         raise NotImplementedError
 
     def pixel_rays(self, lines, pixels) -> tuple[np.ndarray, np.ndarray]:
-        """Focal points and directions (n, 3) of the pixels (lines[i], pixels[i]), ECR."""
+        """Focal points and directions of single pixels.
+
+        Parameters
+        ----------
+        lines, pixels : int arrays (n,)
+            Line and pixel index of each wanted ray.
+
+        Returns
+        -------
+        s, l : arrays (n, 3)
+            Focal points and directions, ECR, for (lines[i], pixels[i]).
+        """
         lines = np.atleast_1d(np.asarray(lines))
         pixels = np.atleast_1d(np.asarray(pixels))
         if lines.shape != pixels.shape or lines.ndim != 1:
