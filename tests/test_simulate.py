@@ -274,9 +274,17 @@ def test_cli_simulate_from_geotiffs(tmp_path, capsys):
     with rasterio.open(run / "simulated.tif") as src:
         assert src.count == 3 + 8 and src.width == n - 32 and src.height == n - 32
     assert "wall" in out
+    lat_c, lon_c = sc["lat_first"] + 79.5 * sc["dlat"], sc["lon_first"] + 79.5 * sc["dlon"]
+    rc = main(["simulate", "--dsm", str(tmp_path / "dsm.tif"), "--ortho", str(tmp_path / "ortho.tif"), "--orbit",
+               "--target", f"{lat_c},{lon_c}", "--lines", "48", "--pixels", "64", "--roll", "8.1", "--quiet",
+               "--no-occlusion", "--out", str(tmp_path / "out")])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    with rasterio.open(tmp_path / "out" / "run-002" / "simulated.tif") as src:
+        assert (src.height, src.width) == (48, 64) and src.read(3 + 8).all()      # every pixel valid
     rc = main(["simulate", "--dsm", str(tmp_path / "dsm.tif"), "--out", str(tmp_path / "out")])
     assert rc == 2 and "--ortho" in capsys.readouterr().err
-    assert not (tmp_path / "out" / "run-002").exists()
+    assert not (tmp_path / "out" / "run-003").exists()
 
 
 def test_cli_simulate_help_documents_a_run_from_files(capsys):
@@ -286,3 +294,35 @@ def test_cli_simulate_help_documents_a_run_from_files(capsys):
         main(["simulate", "--help"])
     text = capsys.readouterr().out
     assert "--dsm dsm.tif --ortho ortho.tif" in text and "--geometry" in text and "run-NNN" in text
+
+
+def test_orbit_pushbroom_over_the_paper_scene():
+    """A north-bound pass rolled to look west at 9 deg zenith at the ground
+    (``off_nadir_angle``): every pixel hits, the ground is seen at 9 deg from
+    the vertical, and the walls that show face east (toward the sensor)."""
+    sc = paper_scene(256)
+    dsm = pi.GeodeticDSM.from_array(sc["heights"], sc["lat_first"], sc["lon_first"], sc["dlat"], sc["dlon"],
+                                    interpolation="nearest")
+    ortho = pi.OrthoImage.from_array(sc["ortho"], sc["lat_first"], sc["lon_first"], sc["dlat"], sc["dlon"])
+    lat_c = sc["lat_first"] + 127.5 * sc["dlat"]
+    lon_c = sc["lon_first"] + 127.5 * sc["dlon"]
+    h_c = float(np.median(sc["ground"]))
+    sensor = pi.Pushbroom.from_orbit(altitude=685e3, inclination=98.1, target=(lat_c, lon_c, h_c), nlines=160,
+                                     npixels=160, ifov=8.4e-5, roll=pi.off_nadir_angle(9.0, 685e3),
+                                     line_period=1.0e-4)
+    sim = pi.simulate_image(dsm, ortho, sensor, ground=sc["ground"], occlusion=False)
+    assert sim.valid.all()
+    ground = sim.surface == 0
+    assert abs(np.median(sim.incidence[ground]) - 9.0) < 0.05
+    corners = sensor.footprint_corners(dsm)
+    assert np.isfinite(corners).all()
+    walls = sim.surface == 2
+    assert walls.sum() > 50
+    # a wall seen from the east: its outward normal has a positive east component, so
+    # stepping 1 m east of the hit goes down (the ground), 1 m west goes up (the roof)
+    from planet_intersect.synthetic_dsm import metre_steps
+
+    dlat, dlon = metre_steps(lat_c)
+    east = dsm.height(sim.lat[walls], sim.lon[walls] + dlon)
+    west = dsm.height(sim.lat[walls], sim.lon[walls] - dlon)
+    assert np.mean(west > east) > 0.9

@@ -20,7 +20,7 @@ from .footprint import (CellTable, FootprintResult, airmass, footprint, scale_he
                         spacecraft_frame, spacecraft_quaternion)
 from .geodetic import ecef_to_geodetic, geodetic_to_ecef
 from .dsm import DSMError, DSMResult, DSMStatus, DSM_RAY_STATUS, GeodeticDSM
-from .sensors import FrameCamera, Pushbroom
+from .sensors import FrameCamera, Pushbroom, off_nadir_angle, view_zenith_angle
 from .simulate import OrthoImage, SimResult, simulate_image
 
 __version__ = "0.1.0"
@@ -31,7 +31,7 @@ __all__ = [
     "CellTable", "FootprintResult", "airmass", "footprint", "scale_height", "spacecraft_frame",
     "spacecraft_quaternion",
     "GeodeticDSM", "DSMResult", "DSMStatus", "DSMError", "DSM_RAY_STATUS", "ecef_to_geodetic", "geodetic_to_ecef",
-    "FrameCamera", "Pushbroom", "OrthoImage", "SimResult", "simulate_image",
+    "FrameCamera", "Pushbroom", "off_nadir_angle", "view_zenith_angle", "OrthoImage", "SimResult", "simulate_image",
 ]
 
 

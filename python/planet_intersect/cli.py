@@ -559,7 +559,7 @@ def _sensor_from_args(args, dsm, scene):
         except (TypeError, ValueError) as exc:
             raise CLIError(f"--geometry {path}: {exc}") from None
     if args.orbit:
-        return _orbit_sensor(args)
+        return _orbit_sensor(args, dsm)
     zen, az = args.oblique
     if not 0 <= zen < 80:
         raise CLIError(f"--oblique: zenith {zen} outside [0, 80) degrees")
@@ -573,17 +573,28 @@ def _sensor_from_args(args, dsm, scene):
                                         margin=margin, step=args.step))
 
 
-def _orbit_sensor(args):
+def _orbit_sensor(args, dsm):
     from .sensors import Pushbroom
 
-    if not hasattr(Pushbroom, "from_orbit"):
-        raise CLIError("--orbit: this build has no built-in orbit model")
     if args.target is None:
         raise CLIError("--orbit needs --target LAT,LON (the point the centre pixel looks at)")
+    lat, lon = args.target
+    h = float(dsm.height(lat, lon))
+    if not np.isfinite(h):
+        raise CLIError(f"--target {lat},{lon}: not over the DSM's data")
+    if args.lines < 1 or args.pixels < 1:
+        raise CLIError(f"--lines and --pixels must be >= 1, got {args.lines} and {args.pixels}")
+    period = args.line_period
+    if period is None:
+        # square pixels: the line period is the nadir GSD over the ground speed of a circular orbit
+        from .sensors import EARTH_GM
+
+        r = dsm.a + args.altitude
+        period = args.altitude * np.radians(args.ifov) / (np.sqrt(EARTH_GM / r) * dsm.a / r)
     return Pushbroom.from_orbit(altitude=args.altitude, inclination=args.inclination,
-                                ascending=not args.descending, target=tuple(args.target), nlines=args.lines,
-                                npixels=args.pixels, ifov=args.ifov, roll=args.roll, pitch=args.pitch,
-                                yaw=args.yaw)
+                                direction="descending" if args.descending else "ascending",
+                                target=(lat, lon, h), nlines=args.lines, npixels=args.pixels, ifov=args.ifov,
+                                roll=args.roll, pitch=args.pitch, yaw=args.yaw, line_period=period)
 
 
 def _pair(text: str) -> tuple[float, float]:
@@ -665,7 +676,8 @@ def _add_simulate_parser(sub) -> None:
                     "  planet-intersect simulate --dsm dsm.tif --ortho ortho.tif --oblique 9,90 --out sims\n"
                     "    (a pushbroom viewing every DSM row at 9 deg zenith from the east, one pixel per cell)\n"
                     "  planet-intersect simulate --dsm dsm.tif --ortho ortho.tif --orbit --target 36.6,-84.2 \\\n"
-                    "      --altitude 685000 --lines 2000 --pixels 2000 --ifov 8.4e-5 --roll -9 --out sims\n"
+                    "      --altitude 685000 --lines 2000 --pixels 2000 --ifov 8.4e-5 --roll 8.1 --out sims\n"
+                    "    (an ascending, north-bound pass looking 8.1 deg to the West: 9 deg zenith at the ground)\n"
                     "  planet-intersect simulate --dsm dsm.tif --ortho ortho.tif --geometry sensor.npz --out sims\n"
                     "    (sensor.npz: s (nlines, 3) and l (nlines, npixels, 3) in ECR metres for a pushbroom,\n"
                     "     or position (3,) and l (nrows, ncols, 3) for a frame camera)\n\n"
@@ -689,7 +701,10 @@ def _add_simulate_parser(sub) -> None:
     s.add_argument("--pixels", type=int, default=1024, help="--orbit: pixels per line")
     s.add_argument("--ifov", type=float, default=8.4e-5,
                    help="--orbit: instantaneous field of view per pixel, degrees (default 8.4e-5: 1 m at 685 km)")
-    s.add_argument("--roll", type=float, default=0.0, help="--orbit: roll, deg")
+    s.add_argument("--line-period", type=float,
+                   help="--orbit: seconds per line (default: square pixels, the nadir GSD over the ground speed)")
+    s.add_argument("--roll", type=float, default=0.0,
+                   help="--orbit: roll, deg (> 0 looks left of the flight direction: west when north-bound)")
     s.add_argument("--pitch", type=float, default=0.0, help="--orbit: pitch, deg")
     s.add_argument("--yaw", type=float, default=0.0, help="--orbit: yaw, deg")
     s.add_argument("--step", type=float, default=1.0, help="--oblique: DSM cells per pixel and line (default 1)")
