@@ -218,6 +218,8 @@ class GeodeticDSM:
 
         lat, lon = np.broadcast_arrays(np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64))
         shape = lat.shape
+        if lat.size == 0:
+            return np.zeros(shape)
         hs, code = _core.core_dsm_height(*self._core_grid(), np.radians(lat).ravel(), np.radians(lon).ravel())
         hs = hs.reshape(shape)
         return hs if shape else float(hs)

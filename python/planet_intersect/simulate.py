@@ -649,7 +649,12 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
 
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
-                res = intersect_dsm(dsm, s, l, method=method, threads=threads)
+                try:
+                    res = intersect_dsm(dsm, s, l, method=method, threads=threads)
+                except ValueError as exc:
+                    # name the image pixel, not the block's flat ray index
+                    raise ValueError(f"sensor lines {k0}..{k1 - 1} (ray index = (line - {k0}) * {npx} + pixel): "
+                                     f"{exc}") from None
         t_rays += time.perf_counter() - ta
         blk = slice(k0, k1)
         shape2 = (k1 - k0, npx)
