@@ -346,3 +346,63 @@ subroutine core_dsm_codes(codes)
   integer, intent(out) :: codes(6)
   codes = [ray_no_data, ray_left_dsm, ray_dsm_miss, ray_not_converged, ray_oscillation, ray_step_limit]
 end subroutine core_dsm_codes
+
+! ======================================================================
+! Image simulation (Shin & Park section 4; issue 12)
+! ======================================================================
+
+!> Values, surface kinds and local incidence angles of n simulated pixels
+!> from their rays' hits (pi_simulate::sim_shade). DSM grid as
+!> core_dsm_height; gnd(ncols, nrows) bare-earth heights; ortho(nb, ocols,
+!> orows) on its grid (olat0, olon0, odlat, odlon, radians); lat, lon
+!> (radians), h, hsurf, hit (1 = hit), l(3, n) unit directions; walls 0
+!> interpolate / 1 ortho; shading 0 none / 1 Lambert; sunmode 0 (azimuth,
+!> elevation in radians in sun(1:2)) / 1 ECR unit vector. Outputs val(nb, n),
+!> kind(n) (-1 none, 0 ground, 1 roof, 2 wall), locinc(n) (radians).
+subroutine core_sim_shade(ncols, nrows, hgt, lat0, lon0, dlat, dlon, a, f, interp, gnd, nb, ocols, orows, &
+                          ortho, olat0, olon0, odlat, odlon, n, lat, lon, h, hsurf, hit, l, walls, shading, &
+                          sunmode, sun, ambient, cos_wall, roof_min, cell_x, cell_y, fill, threads, val, kind, &
+                          locinc)
+  use pi_kinds, only: dp
+  use pi_vector, only: pi
+  use pi_dsm, only: dsm_t, dsm_attach
+  use pi_simulate, only: ortho_t, sim_options_t, sim_shade
+  implicit none
+  integer, intent(in) :: ncols, nrows, interp, nb, ocols, orows, n, walls, shading, sunmode, threads
+  real(dp), intent(in), target :: hgt(ncols, nrows), ortho(nb, ocols, orows)
+  real(dp), intent(in) :: gnd(ncols, nrows)
+  real(dp), intent(in) :: lat0, lon0, dlat, dlon, a, f, olat0, olon0, odlat, odlon
+  real(dp), intent(in) :: lat(n), lon(n), h(n), hsurf(n), l(3, n), sun(3), ambient, cos_wall, roof_min
+  real(dp), intent(in) :: cell_x, cell_y, fill
+  integer, intent(in) :: hit(n)
+  real(dp), intent(out) :: val(nb, n), locinc(n)
+  integer, intent(out) :: kind(n)
+  real(dp), target :: nopyr(1)
+  integer, target :: nometa(3, 1)
+  type(dsm_t) :: dsm
+  type(ortho_t) :: o
+  type(sim_options_t) :: opt
+  nopyr = 0.0_dp
+  nometa = 1
+  call dsm_attach(hgt, lat0, lon0, dlat, dlon, a, f, interp, 0.0_dp, 0.0_dp, nopyr, nometa, dsm)
+  o%v => ortho
+  o%nb = nb
+  o%ncols = ocols
+  o%nrows = orows
+  o%lat0 = olat0
+  o%lon0 = olon0
+  o%dlat = odlat
+  o%dlon = odlon
+  o%lonc = olon0 + 0.5_dp * (ocols - 1) * odlon
+  opt%walls = walls
+  opt%shading = shading
+  opt%sun_mode = sunmode
+  opt%sun = sun
+  opt%ambient = ambient
+  opt%cos_wall = cos_wall
+  opt%roof_min = roof_min
+  opt%cell_x = cell_x
+  opt%cell_y = cell_y
+  opt%fill = fill
+  call sim_shade(dsm, gnd, o, opt, n, lat, lon, h, hsurf, hit, l, threads, val, kind, locinc)
+end subroutine core_sim_shade

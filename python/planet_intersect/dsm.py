@@ -443,8 +443,7 @@ def intersect_dsm(dsm: GeodeticDSM, s, l, method: str = "following", threads: in
         Bad shapes, NaN/Inf or zero-length vectors, unknown method/outside, or a
         focal point at or below the surface (names ``s`` and the ray).
     """
-    from . import _core
-    from .intersect import FAR_LIMIT, _choice, _unit_scaled, as_vectors, check_threads
+    from .intersect import _choice, check_threads
 
     if not isinstance(dsm, GeodeticDSM):
         raise TypeError(f"dsm must be a planet_intersect.GeodeticDSM, got {type(dsm).__name__}")
@@ -452,40 +451,9 @@ def intersect_dsm(dsm: GeodeticDSM, s, l, method: str = "following", threads: in
     _choice(method, "method (for a GeodeticDSM)", tuple(_DSM_METHODS))
     _choice(outside, "outside", ("none", "ellipsoid"))
     check_threads(threads, 1)
-    s = as_vectors(s, "s")
-    l = as_vectors(l, "l")
-    if len(s) != len(l) and len(s) != 1 and len(l) != 1:
-        raise ValueError(f"s and l: {len(s)} positions do not broadcast against {len(l)} directions")
-    with np.errstate(over="ignore"):
-        far = np.einsum("ij,ij->i", s, s) > (FAR_LIMIT * dsm.a) ** 2
-    if far.any():
-        k = int(np.argmax(far))
-        raise ValueError(f"s[{k}] = {s[k]} is farther than {FAR_LIMIT:g} semi-major axes from the centre "
-                         "(the line's position at the body would be lost to rounding)")
-    l = _unit_scaled(l)
-    n = 0 if min(len(s), len(l)) == 0 else max(len(s), len(l))
+    n, s, l, p, q, scal, status, nsteps = _trace_raw(dsm, s, l, method, threads)
     if n == 0:
         return _empty_result()
-    threads = check_threads(threads, n)
-    s = np.ascontiguousarray(np.broadcast_to(s, (n, 3)))
-    l = np.ascontiguousarray(np.broadcast_to(l, (n, 3)))
-    pyr, meta = dsm.pyramid()
-    p, q, scal, status, nsteps, stat = _core.core_dsm_trace(
-        *dsm._core_grid()[:7], dsm._core_grid()[7], dsm.hmax, dsm.hmin, pyr, meta.T, s.T, l.T,
-        _DSM_METHODS[method], int(threads))
-    if stat != 0:
-        raise ValueError(f"intersect: the core rejected method {method!r} (status {stat})")
-    bad = np.flatnonzero((status == DSMStatus.BAD_POSITION) | (status == DSMStatus.BAD_DIRECTION))
-    if bad.size:                              # the checks above should have caught it: never silent
-        k = int(bad[0])
-        which = "s" if status[k] == DSMStatus.BAD_POSITION else "l"
-        raise ValueError(f"{which}[{k}] = {(s if which == 's' else l)[k]} cannot be used by the core "
-                         f"({DSM_RAY_STATUS[int(status[k])]}; {bad.size} ray(s) affected)")
-    inside = np.flatnonzero(status == DSMStatus.INSIDE)
-    if inside.size:
-        k = int(inside[0])
-        raise ValueError(f"s[{k}] = {s[k]} is at or below the DSM surface ({inside.size} ray(s) affected): "
-                         f"the focal point must be above the surface")
     nan3 = np.full((n, 3), np.nan)
     nan1 = np.full(n, np.nan)
     res = DSMResult(
@@ -511,6 +479,51 @@ def intersect_dsm(dsm: GeodeticDSM, s, l, method: str = "following", threads: in
                 la, lo, _ = ecef_to_geodetic(pe, dsm.a, dsm.f)
                 res.ellipsoid_lat[k], res.ellipsoid_lon[k] = la, lo
     return res
+
+
+def _trace_raw(dsm: GeodeticDSM, s, l, method: str, threads):
+    """The checks and the core call shared by :func:`intersect_dsm` and the image
+    simulation: (n, s, l, p, q, scal, status, nsteps) as the core returns them
+    (p, q (3, n); scal (10, n): lat, lon (radians), height, surface height,
+    distance, incidence (radians), event lat, lon, height, distance)."""
+    from . import _core
+    from .intersect import FAR_LIMIT, _unit_scaled, as_vectors, check_threads
+
+    s = as_vectors(s, "s")
+    l = as_vectors(l, "l")
+    if len(s) != len(l) and len(s) != 1 and len(l) != 1:
+        raise ValueError(f"s and l: {len(s)} positions do not broadcast against {len(l)} directions")
+    with np.errstate(over="ignore"):
+        far = np.einsum("ij,ij->i", s, s) > (FAR_LIMIT * dsm.a) ** 2
+    if far.any():
+        k = int(np.argmax(far))
+        raise ValueError(f"s[{k}] = {s[k]} is farther than {FAR_LIMIT:g} semi-major axes from the centre "
+                         "(the line's position at the body would be lost to rounding)")
+    l = _unit_scaled(l)
+    n = 0 if min(len(s), len(l)) == 0 else max(len(s), len(l))
+    if n == 0:
+        return 0, s, l, None, None, None, None, None
+    threads = check_threads(threads, n)
+    s = np.ascontiguousarray(np.broadcast_to(s, (n, 3)))
+    l = np.ascontiguousarray(np.broadcast_to(l, (n, 3)))
+    pyr, meta = dsm.pyramid()
+    p, q, scal, status, nsteps, stat = _core.core_dsm_trace(
+        *dsm._core_grid()[:7], dsm._core_grid()[7], dsm.hmax, dsm.hmin, pyr, meta.T, s.T, l.T,
+        _DSM_METHODS[method], int(threads))
+    if stat != 0:
+        raise ValueError(f"intersect: the core rejected method {method!r} (status {stat})")
+    bad = np.flatnonzero((status == DSMStatus.BAD_POSITION) | (status == DSMStatus.BAD_DIRECTION))
+    if bad.size:                              # the checks above should have caught it: never silent
+        k = int(bad[0])
+        which = "s" if status[k] == DSMStatus.BAD_POSITION else "l"
+        raise ValueError(f"{which}[{k}] = {(s if which == 's' else l)[k]} cannot be used by the core "
+                         f"({DSM_RAY_STATUS[int(status[k])]}; {bad.size} ray(s) affected)")
+    inside = np.flatnonzero(status == DSMStatus.INSIDE)
+    if inside.size:
+        k = int(inside[0])
+        raise ValueError(f"s[{k}] = {s[k]} is at or below the DSM surface ({inside.size} ray(s) affected): "
+                         f"the focal point must be above the surface")
+    return n, s, l, p, q, scal, status, nsteps
 
 
 def _ellipsoid_entry(s, l, a, f):

@@ -119,5 +119,10 @@ def geodetic_to_ecef(lat, lon, h, a: float = WGS84_A, f: float = WGS84_F) -> np.
 
 def _wrap180(lon_deg):
     """Longitudes (deg) into [-180, 180)."""
-    w = np.mod(np.asarray(lon_deg) + 180.0, 360.0) - 180.0
-    return np.where(w >= 180.0, w - 360.0, w)
+    x = np.asarray(lon_deg, dtype=np.float64)
+    out = (x >= -180.0) & (x < 180.0)
+    if out.all():                          # the usual case: nothing to wrap (np.mod is slow on NaN)
+        return x.copy()
+    w = np.mod(x + 180.0, 360.0) - 180.0
+    w = np.where(w >= 180.0, w - 360.0, w)
+    return np.where(out, x, w)

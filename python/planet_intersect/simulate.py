@@ -37,12 +37,18 @@ _METHODS = ("exact", "following", "iterative")
 
 
 # --------------------------------------------------------------------- grids
-def _grid_coords(lat, lon, lat_first, lon_first, dlat, dlon):
+def _grid_coords(lat, lon, lat_first, lon_first, dlat, dlon, ncols):
     """Fractional (row, col) of geodetic (lat, lon) on a pixel-centre grid;
-    longitudes taken modulo 360 from lon_first (extents may cross 180)."""
+    longitudes taken within 180 degrees of the grid's centre longitude (extents
+    may cross 180), as the Fortran kernels do."""
     u = (np.asarray(lat, dtype=np.float64) - lat_first) / dlat
-    v = np.mod(np.asarray(lon, dtype=np.float64) - lon_first + 180.0, 360.0) - 180.0
-    v = v / dlon
+    lon = np.asarray(lon, dtype=np.float64)
+    lon_c = lon_first + 0.5 * (ncols - 1) * dlon
+    v = (lon - lon_first) / dlon                     # exact at the pixel centres
+    far = ~(np.abs(lon - lon_c) <= 180.0)
+    if far.any():
+        w = np.mod(lon - lon_c + 180.0, 360.0) - 180.0
+        v = np.where(far, (w + (lon_c - lon_first)) / dlon, v)
     return u, v
 
 
@@ -136,9 +142,18 @@ class OrthoImage:
         return (f"OrthoImage({self.shape[0]} x {self.shape[1]} x {self.bands} band(s), lat {self.lat_first}"
                 f"{self.dlat:+g}/row, lon {self.lon_first}{self.dlon:+g}/col)")
 
+    def _core_values(self) -> np.ndarray:
+        """values as the shading kernel takes them: (bands, ncols, nrows), Fortran order (no copy)."""
+        nr, nc = self.shape
+        return self._v.reshape(nr, nc, self.bands).T
+
+    def _core_grid(self) -> tuple:
+        return (math.radians(self.lat_first), math.radians(self.lon_first), math.radians(self.dlat),
+                math.radians(self.dlon))
+
     def grid_coords(self, lat, lon):
         """Fractional (row, col) of (lat, lon) in degrees."""
-        return _grid_coords(lat, lon, self.lat_first, self.lon_first, self.dlat, self.dlon)
+        return _grid_coords(lat, lon, self.lat_first, self.lon_first, self.dlat, self.dlon, self.shape[1])
 
     def sample(self, lat, lon) -> np.ndarray:
         """Bilinear value at geodetic (lat, lon), degrees: shape of lat (+ (bands,)
@@ -356,16 +371,6 @@ class SimResult:
 
 
 # ----------------------------------------------------------- surface geometry
-def _enu(lat_deg, lon_deg):
-    """East, north, up unit vectors (N, 3) at geodetic (lat, lon)."""
-    la, lo = np.radians(lat_deg), np.radians(lon_deg)
-    sl, cl, so, co = np.sin(la), np.cos(la), np.sin(lo), np.cos(lo)
-    e = np.stack([-so, co, np.zeros_like(so)], axis=-1)
-    n = np.stack([-sl * co, -sl * so, cl], axis=-1)
-    u = np.stack([cl * co, cl * so, sl], axis=-1)
-    return e, n, u
-
-
 def _metres_per_degree(lat_deg, h, a, f):
     """(north, east) metres per degree of latitude / longitude at (lat, h)."""
     e2 = f * (2 - f)
@@ -374,71 +379,6 @@ def _metres_per_degree(lat_deg, h, a, f):
     m = a * (1 - e2) / w ** 3
     n = a / w
     return np.radians(1.0) * (m + h), np.radians(1.0) * (n + h) * np.cos(np.radians(lat_deg))
-
-
-class _Surface:
-    """What the simulation needs of the DSM beyond the ray's hit: heights at
-    fractional grid positions, the local gradient in metres, the ground model."""
-
-    def __init__(self, dsm: GeodeticDSM, ground):
-        self.dsm = dsm
-        self.h = np.asarray(dsm.heights, dtype=np.float64)
-        self.nearest = dsm.interpolation == "nearest"
-        lat_mid = dsm.lat_first + 0.5 * (dsm.nrows - 1) * dsm.dlat
-        my, mx = _metres_per_degree(lat_mid, 0.0, dsm.a, dsm.f)
-        self.cell_y, self.cell_x = abs(dsm.dlat) * my, dsm.dlon * mx     # metres per cell (scene middle)
-        self.ground = ground
-
-    def uv(self, lat, lon):
-        d = self.dsm
-        return _grid_coords(lat, lon, d.lat_first, d.lon_first, d.dlat, d.dlon)
-
-    def height_at(self, lat, lon):
-        return np.asarray(self.dsm.height(lat, lon), dtype=np.float64)
-
-    def gradient(self, lat, lon, h):
-        """(dH/d east, dH/d north) in m/m of the DSM at the hits: the bilinear
-        patch's gradient ("bilinear"); for "nearest" the step across the cell
-        side the hit lies on, per cell width (zero on a flat top)."""
-        d = self.dsm
-        u, v = self.uv(lat, lon)
-        my, mx = _metres_per_degree(lat, h, d.a, d.f)
-        nr, nc = self.h.shape
-        if not self.nearest:
-            i = np.clip(np.floor(u).astype(np.intp), 0, max(nr - 2, 0))
-            j = np.clip(np.floor(v).astype(np.intp), 0, max(nc - 2, 0))
-            fu, fv = np.clip(u - i, 0, 1), np.clip(v - j, 0, 1)
-            z = self.h
-            i1, j1 = np.minimum(i + 1, nr - 1), np.minimum(j + 1, nc - 1)
-            dhdu = (1 - fv) * (z[i1, j] - z[i, j]) + fv * (z[i1, j1] - z[i, j1])
-            dhdv = (1 - fu) * (z[i, j1] - z[i, j]) + fu * (z[i1, j1] - z[i1, j])
-        else:
-            # the hit is on the side between the cell it is over and a neighbour when
-            # u or v is within rounding of a half-integer [sim note 3]
-            dhdu = np.zeros_like(u)
-            dhdv = np.zeros_like(v)
-            eps = 1e-6
-            ic = np.clip(np.rint(u).astype(np.intp), 0, nr - 1)
-            jc = np.clip(np.rint(v).astype(np.intp), 0, nc - 1)
-            for axis, coord, out in ((0, u, dhdu), (1, v, dhdv)):
-                frac = coord - np.floor(coord)
-                side = np.abs(frac - 0.5) < eps
-                lo = np.clip(np.floor(coord).astype(np.intp), 0, (nr if axis == 0 else nc) - 1)
-                hi = np.clip(lo + 1, 0, (nr if axis == 0 else nc) - 1)
-                if axis == 0:
-                    step = self.h[hi, jc] - self.h[lo, jc]
-                else:
-                    step = self.h[ic, hi] - self.h[ic, lo]
-                out[side] = np.nan_to_num(step[side])
-        dnorth = dhdu / (d.dlat * my)            # d/d(lat deg) / (m per deg), sign of dlat included
-        deast = dhdv / (d.dlon * mx)
-        return deast, dnorth
-
-    def ground_height(self, lat, lon):
-        if self.ground is None:
-            return None
-        u, v = self.uv(lat, lon)
-        return _bilinear(self.ground, u, v)
 
 
 def _opening_ground(dsm: GeodeticDSM, window_m: float) -> np.ndarray:
@@ -482,21 +422,6 @@ class _Progress:
         if done >= self.total:
             sys.stderr.write("\n")
         sys.stderr.flush()
-
-
-def _sun_vectors(sun, lat, lon):
-    """Unit vectors toward the Sun (N, 3), ECR: from (azimuth, elevation) in
-    degrees at each hit (azimuth clockwise from north) or one ECR vector."""
-    arr = np.asarray(sun, dtype=np.float64)
-    if arr.shape == (2,):
-        az, el = np.radians(arr)
-        e, n, u = _enu(lat, lon)
-        return np.cos(el) * (np.sin(az) * e + np.cos(az) * n) + np.sin(el) * u
-    if arr.shape == (3,):
-        nrm = np.linalg.norm(arr)
-        return np.broadcast_to(arr / nrm, (len(lat), 3))
-    arr = arr.reshape(-1, 3)
-    return arr / np.linalg.norm(arr, axis=1, keepdims=True)
 
 
 def _check_sun(sun):
@@ -580,7 +505,9 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
     -------
     SimResult
     """
-    from .dsm import intersect_dsm
+    from . import _core
+    from .dsm import _trace_raw
+    from .geodetic import _wrap180
     from .intersect import _choice, check_threads
     from .sensors import Sensor
 
@@ -625,7 +552,6 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
             raise FileExistsError(f"out={out_dir}: exists; choose a new directory (nothing is overwritten)")
         out_dir.mkdir(parents=True)
 
-    surf = _Surface(dsm, ground_grid)
     nl, npx = sensor.shape
     bands = ortho.bands
     ishape = (nl, npx) if bands == 1 else (nl, npx, bands)
@@ -636,7 +562,22 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
     surface = _alloc(out_dir, "surface", (nl, npx), np.int8, -1)
     status = _alloc(out_dir, "status", (nl, npx), np.int8, -1)
     pts = _alloc(out_dir, "p", (nl, npx, 3), np.float64, np.nan)
-    cos_wall = math.cos(math.radians(wall_slope))
+    # what the shading kernel (fortran/pi_simulate.f90) needs, made once
+    lat_mid = dsm.lat_first + 0.5 * (dsm.nrows - 1) * dsm.dlat
+    my, mx = _metres_per_degree(lat_mid, 0.0, dsm.a, dsm.f)
+    grid = dsm._core_grid()
+    gnd = np.ascontiguousarray(ground_grid, dtype=np.float64).T
+    ov = ortho._core_values()
+    if sun_arr is None:
+        sunmode, sunv = 0, np.zeros(3)
+    elif sun_arr.shape == (2,):
+        sunmode, sunv = 0, np.array([math.radians(sun_arr[0]), math.radians(sun_arr[1]), 0.0])
+    else:
+        sunmode, sunv = 1, sun_arr / np.linalg.norm(sun_arr)
+    shade_args = dict(walls=0 if walls == "interpolate" else 1, shading=0 if shading == "none" else 1,
+                      sunmode=sunmode, sun=sunv, ambient=ambient, cos_wall=math.cos(math.radians(wall_slope)),
+                      roof_min=roof_min, cell_x=dsm.dlon * mx, cell_y=abs(dsm.dlat) * my, fill=fill)
+    nthreads = check_threads(threads, 1)
     bar = _Progress(nl, progress)
     t0 = time.perf_counter()
     t_rays = 0.0
@@ -644,43 +585,41 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
         k1 = min(nl, k0 + block_lines)
         s, l = sensor.rays(k0, k1)
         ta = time.perf_counter()
-        with np.errstate(all="ignore"):
-            import warnings
-
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                try:
-                    res = intersect_dsm(dsm, s, l, method=method, threads=threads)
-                except ValueError as exc:
-                    # name the image pixel, not the block's flat ray index
-                    raise ValueError(f"sensor lines {k0}..{k1 - 1} (ray index = (line - {k0}) * {npx} + pixel): "
-                                     f"{exc}") from None
+        try:
+            n, s, l, p, _, scal, st, _ = _trace_raw(dsm, s, l, method, threads)
+        except ValueError as exc:
+            # name the image pixel, not the block's flat ray index
+            raise ValueError(f"sensor lines {k0}..{k1 - 1} (ray index = (line - {k0}) * {npx} + pixel): "
+                             f"{exc}") from None
         t_rays += time.perf_counter() - ta
         blk = slice(k0, k1)
         shape2 = (k1 - k0, npx)
-        status[blk] = res.status.reshape(shape2)
-        ok = res.hit                      # HIT (and HIT_UNCONVERGED: a hit, best estimate) [sim note 8]
-        valid[blk] = ok.reshape(shape2)
-        planes["lat"][blk] = res.lat.reshape(shape2)
-        planes["lon"][blk] = res.lon.reshape(shape2)
-        planes["height"][blk] = res.height.reshape(shape2)
-        planes["distance"][blk] = res.distance.reshape(shape2)
-        planes["incidence"][blk] = res.incidence.reshape(shape2)
-        pts[blk] = res.p.reshape(shape2 + (3,))
-        idx = np.flatnonzero(ok)
-        if idx.size:
-            vals, kind, loc_inc = _shade_hits(surf, ortho, res, idx, l, walls, shading, sun_arr, ambient,
-                                              cos_wall, roof_min)
-            flat_img = image[blk].reshape((-1,) + ishape[2:])
-            vals = np.where(np.isfinite(vals), vals, fill)
-            flat_img[idx] = vals
-            image[blk] = flat_img.reshape(((k1 - k0), npx) + ishape[2:])
-            sk = np.full(len(ok), -1, dtype=np.int8)
-            sk[idx] = kind
-            surface[blk] = sk.reshape(shape2)
-            li = np.full(len(ok), np.nan)
-            li[idx] = loc_inc
-            planes["local_incidence"][blk] = li.reshape(shape2)
+        hit = (st == DSMStatus.HIT) | (st == DSMStatus.HIT_UNCONVERGED)   # [sim note 8]
+        status[blk] = st.reshape(shape2)
+        valid[blk] = hit.reshape(shape2)
+        miss = ~hit
+        lat = scal[0].copy()
+        lat[miss] = np.nan
+        planes["lat"][blk] = np.degrees(lat).reshape(shape2)
+        lon = np.degrees(scal[1])
+        lon[miss] = np.nan
+        planes["lon"][blk] = _wrap180(lon).reshape(shape2)
+        for name, row in (("height", 2), ("distance", 4)):
+            v = scal[row].copy()
+            v[miss] = np.nan
+            planes[name][blk] = v.reshape(shape2)
+        inc = np.degrees(scal[5])
+        inc[miss] = np.nan
+        planes["incidence"][blk] = inc.reshape(shape2)
+        pp = p.T.copy()
+        pp[miss] = np.nan
+        pts[blk] = pp.reshape(shape2 + (3,))
+        val, kind, locinc = _core.core_sim_shade(*grid[:7], grid[7], gnd, ov, *ortho._core_grid(), scal[0],
+                                                 scal[1], scal[2], scal[3], hit.astype(np.int32), l.T,
+                                                 threads=nthreads, **shade_args)
+        image[blk] = val.T.reshape(((k1 - k0), npx) + ishape[2:])
+        surface[blk] = kind.reshape(shape2)
+        planes["local_incidence"][blk] = np.degrees(locinc).reshape(shape2)
         bar.update(k1, k1 * npx)
     t_sim = time.perf_counter() - t0
     sim = SimResult(image=image, valid=valid, surface=surface, status=status, p=pts, **planes)
@@ -692,84 +631,6 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
         sim.occlusion, sim.footprint = _occlusion(dsm, ortho, sensor, sim, threads)
         sim.meta["seconds_occlusion"] = time.perf_counter() - ta
     return sim
-
-
-def _shade_hits(surf: _Surface, ortho: OrthoImage, res, idx, l, walls, shading, sun_arr, ambient, cos_wall,
-                roof_min):
-    """Values, surface kinds and local incidence angles of the hit rays ``idx``."""
-    lat, lon, h = res.lat[idx], res.lon[idx], res.height[idx]
-    li = l[idx] / np.linalg.norm(l[idx], axis=1, keepdims=True)
-    gx, gy = surf.gradient(lat, lon, h)                   # dH/deast, dH/dnorth (m/m)
-    e, n, u = _enu(lat, lon)
-    g2 = gx * gx + gy * gy
-    # slope steeper than wall_slope <=> cos(slope) = 1/sqrt(1+g^2) < cos(wall_slope)  [sim note 1]
-    wall = 1.0 / np.sqrt(1.0 + g2) < cos_wall
-    if surf.nearest:
-        # "nearest": a hit below the cell-top height lies on a cell side; it is a wall
-        # when the step there is steep at cell scale (the gradient above) [sim note 3]
-        on_side = res.surface_height[idx] - h > 1e-6
-        wall &= on_side
-    gn = np.sqrt(np.maximum(g2, 1e-300))
-    horiz = (-(gx / gn))[:, None] * e + (-(gy / gn))[:, None] * n    # outward horizontal: downhill
-    normal = (-gx)[:, None] * e + (-gy)[:, None] * n + u
-    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-    if surf.nearest:
-        normal = np.where(wall[:, None], horiz, u)         # flat tops; vertical sides
-    else:
-        normal = np.where(wall[:, None], horiz, normal)
-    cosi = np.clip(-np.einsum("ij,ij->i", li, normal), -1, 1)
-    loc_inc = np.degrees(np.arccos(cosi))
-    ground = surf.ground_height(lat, lon)
-    roof = ~wall & (h - ground > roof_min)
-    kind = np.where(wall, 2, np.where(roof, 1, 0)).astype(np.int8)
-    vals = ortho.sample(lat, lon)
-    if walls == "interpolate" and wall.any():
-        w = np.flatnonzero(wall)
-        vals = np.array(vals, dtype=np.float64)
-        vals[w] = _wall_values(surf, ortho, lat[w], lon[w], h[w], gx[w], gy[w], gn[w])
-    if shading == "lambert":
-        sun = _sun_vectors(sun_arr, lat, lon)
-        fac = ambient + (1 - ambient) * np.maximum(0.0, np.einsum("ij,ij->i", normal, sun))
-        vals = vals * (fac if vals.ndim == 1 else fac[:, None])
-    return vals, kind, loc_inc
-
-
-def _wall_values(surf: _Surface, ortho: OrthoImage, lat, lon, h, gx, gy, gn):
-    """Wall texture [sim note 2]: the ortho-photo has none, so a wall hit's value
-    is interpolated linearly in height between the ortho value at the roof edge
-    (a point one sample inside the building, against the outward horizontal
-    normal) and at the wall's foot (one sample outside): a vertical ramp from
-    the roof-edge colour at the top to the ground colour at the bottom.
-
-    The sample step is half a cell for "nearest" (the wall is a cell side: the
-    two cell centres) and one cell for "bilinear" (the wall is a one-cell ramp
-    between the roof's last node and the ground's first)."""
-    d = surf.dsm
-    step_cells = 0.5 if surf.nearest else 1.0
-    dx, dy = gx / gn, gy / gn                               # uphill unit direction (east, north)
-    my, mx = _metres_per_degree(lat, h, d.a, d.f)
-    # one step in cells along the direction: metres per cell projected on it
-    cell_m = np.abs(dx) * surf.cell_x + np.abs(dy) * surf.cell_y
-    step_m = step_cells * np.maximum(cell_m, 1e-9)
-    lat_in = lat + dy * step_m / my
-    lon_in = lon + dx * step_m / mx
-    lat_out = lat - dy * step_m / my
-    lon_out = lon - dx * step_m / mx
-    h_top = surf.height_at(lat_in, lon_in)
-    h_foot = surf.height_at(lat_out, lon_out)
-    v_top = ortho.sample(lat_in, lon_in)
-    v_foot = ortho.sample(lat_out, lon_out)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        t = np.clip((h - h_foot) / (h_top - h_foot), 0.0, 1.0)
-    t = np.where(np.isfinite(t), t, 0.5)
-    if v_top.ndim == 2:
-        t = t[:, None]
-    val = (1 - t) * v_foot + t * v_top
-    # a sample that fell outside the ortho-image: the other one, then the plain value
-    plain = ortho.sample(lat, lon)
-    val = np.where(np.isfinite(val), val, np.where(np.isfinite(v_top), v_top, np.where(np.isfinite(v_foot),
-                                                                                      v_foot, plain)))
-    return val
 
 
 def _occlusion(dsm: GeodeticDSM, ortho: OrthoImage, sensor, sim: SimResult, threads):

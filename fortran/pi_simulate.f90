@@ -1,0 +1,297 @@
+!> Image simulation (Shin & Park section 4): what a simulated pixel shows once
+!> its ray's first hit on the DSM is known — the ortho-image value there, the
+!> kind of surface hit, the local incidence angle, wall texture and Lambertian
+!> shading. The choices are the numbered notes of docs/simulation-notes.md
+!> ([sim note N] below); python/planet_intersect/simulate.py documents the
+!> same rules for the caller.
+!>
+!> Frames and units: hit latitudes/longitudes geodetic, radians; heights in the
+!> DSM's units above its ellipsoid; ray directions unit vectors in ECR.
+!> Grids: the DSM's (pi_dsm, hgt(col, row)); the ortho-image's values
+!> ortho(band, col, row) on its own pixel-centre grid (olat0, olon0, odlat,
+!> odlon, radians), NaN = no data; the ground grid has the DSM's shape.
+module pi_simulate
+  use pi_kinds, only: dp
+  use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, interp_nearest, pt_ok
+  use pi_vector, only: pi
+  use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan, ieee_is_finite
+  !$ use omp_lib, only: omp_get_max_threads
+  implicit none
+  private
+
+  public :: ortho_t, sim_options_t, sim_shade, ortho_sample
+  public :: walls_interpolate, walls_ortho, shading_none, shading_lambert, sun_azel, sun_ecr
+  public :: kind_none, kind_ground, kind_roof, kind_wall
+
+  !> wall texture: interpolated in height [sim note 2], or the plain ortho value
+  integer, parameter :: walls_interpolate = 0, walls_ortho = 1
+  !> shading: none, Lambertian [sim note 4]; the Sun as (azimuth, elevation) at each hit, or one ECR vector
+  integer, parameter :: shading_none = 0, shading_lambert = 1, sun_azel = 0, sun_ecr = 1
+  !> surface kinds (DESIGN.md section 9)
+  integer, parameter :: kind_none = -1, kind_ground = 0, kind_roof = 1, kind_wall = 2
+
+  !> An ortho-image attached to caller-owned values (no copy, no state).
+  type :: ortho_t
+    !> values(band, col, row); NaN = no data
+    real(dp), pointer, contiguous :: v(:, :, :) => null()
+    integer :: nb = 1, ncols = 0, nrows = 0
+    !> first centre latitude/longitude, spacings, centre longitude (radians)
+    real(dp) :: lat0 = 0, lon0 = 0, dlat = 1, dlon = 1, lonc = 0
+  end type ortho_t
+
+  !> The options of a simulation (simulate_image's arguments).
+  type :: sim_options_t
+    integer :: walls = walls_interpolate, shading = shading_none, sun_mode = sun_azel
+    !> sun: (azimuth, elevation) in radians in sun(1:2), or an ECR unit vector
+    real(dp) :: sun(3) = 0, ambient = 0, cos_wall = 0.5_dp, roof_min = 2, fill = 0
+    !> metres per DSM cell north-south and east-west (scene middle), for the wall samples
+    real(dp) :: cell_y = 1, cell_x = 1
+  end type sim_options_t
+
+contains
+
+  !> Bilinear value of the ortho-image at (lat, lon) (radians), every band:
+  !> NaN outside the rectangle of pixel centres or where a needed pixel is NaN.
+  pure subroutine ortho_sample(o, lat, lon, val)
+    type(ortho_t), intent(in) :: o
+    real(dp), intent(in) :: lat, lon
+    real(dp), intent(out) :: val(o%nb)
+    real(dp) :: u, v, fu, fv, dl
+    integer :: i, j, i1, j1
+    if (abs(lon - o%lonc) <= pi) then
+      v = (lon - o%lon0) / o%dlon                   ! column; exact at the pixel centres
+    else
+      dl = modulo(lon - o%lonc + pi, 2.0_dp * pi) - pi
+      v = (dl + (o%lonc - o%lon0)) / o%dlon
+    end if
+    u = (lat - o%lat0) / o%dlat                     ! row
+    if (.not. (u >= 0.0_dp .and. u <= o%nrows - 1 .and. v >= 0.0_dp .and. v <= o%ncols - 1)) then
+      val = ieee_value(0.0_dp, ieee_quiet_nan)
+      return
+    end if
+    i = min(int(u), max(o%nrows - 2, 0))
+    j = min(int(v), max(o%ncols - 2, 0))
+    fu = u - i
+    fv = v - j
+    i1 = min(i + 1, o%nrows - 1)
+    j1 = min(j + 1, o%ncols - 1)
+    val = (1 - fu) * ((1 - fv) * o%v(:, j + 1, i + 1) + fv * o%v(:, j1 + 1, i + 1)) &
+          + fu * ((1 - fv) * o%v(:, j + 1, i1 + 1) + fv * o%v(:, j1 + 1, i1 + 1))
+  end subroutine ortho_sample
+
+  !> Bilinear value of a grid shaped like the DSM at grid coordinates (u col,
+  !> v row); NaN outside the rectangle of centres.
+  pure function grid_bilinear(g, u, v) result(val)
+    real(dp), intent(in) :: g(:, :), u, v
+    real(dp) :: val, fu, fv
+    integer :: i, j, i1, j1, nc, nr
+    nc = size(g, 1)
+    nr = size(g, 2)
+    if (.not. (v >= 0.0_dp .and. v <= nr - 1 .and. u >= 0.0_dp .and. u <= nc - 1)) then
+      val = ieee_value(0.0_dp, ieee_quiet_nan)
+      return
+    end if
+    i = min(int(v), max(nr - 2, 0))
+    j = min(int(u), max(nc - 2, 0))
+    fv = v - i
+    fu = u - j
+    i1 = min(i + 1, nr - 1)
+    j1 = min(j + 1, nc - 1)
+    val = (1 - fv) * ((1 - fu) * g(j + 1, i + 1) + fu * g(j1 + 1, i + 1)) &
+          + fv * ((1 - fu) * g(j + 1, i1 + 1) + fu * g(j1 + 1, i1 + 1))
+  end function grid_bilinear
+
+  !> The DSM's slope at a hit, (dH/d east, dH/d north) in m/m [sim note 1]:
+  !> "bilinear": the gradient of the bilinear patch at the hit; "nearest": the
+  !> step across the cell side the hit lies on (u or v within 1e-6 of a
+  !> half-integer) per cell width, zero on a flat top [sim note 3].
+  !> my, mx: metres per radian of latitude and longitude at the hit.
+  pure subroutine dsm_gradient(dsm, u, v, my, mx, gx, gy)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: u, v, my, mx
+    real(dp), intent(out) :: gx, gy
+    real(dp) :: dhdu, dhdv, fu, fv, step
+    integer :: nc, nr, i, j, i1, j1, lo, hi, ic, jc
+    nc = dsm%ncols
+    nr = dsm%nrows
+    if (dsm%interp /= interp_nearest) then
+      i = min(max(floor(v), 0), max(nr - 2, 0))
+      j = min(max(floor(u), 0), max(nc - 2, 0))
+      fv = min(max(v - i, 0.0_dp), 1.0_dp)
+      fu = min(max(u - j, 0.0_dp), 1.0_dp)
+      i1 = min(i + 1, nr - 1)
+      j1 = min(j + 1, nc - 1)
+      ! d/d(row) and d/d(column) of the bilinear patch
+      dhdv = (1 - fu) * (dsm%hgt(j + 1, i1 + 1) - dsm%hgt(j + 1, i + 1)) &
+             + fu * (dsm%hgt(j1 + 1, i1 + 1) - dsm%hgt(j1 + 1, i + 1))
+      dhdu = (1 - fv) * (dsm%hgt(j1 + 1, i + 1) - dsm%hgt(j + 1, i + 1)) &
+             + fv * (dsm%hgt(j1 + 1, i1 + 1) - dsm%hgt(j + 1, i1 + 1))
+    else
+      dhdu = 0.0_dp
+      dhdv = 0.0_dp
+      ic = min(max(nint(v), 0), nr - 1)
+      jc = min(max(nint(u), 0), nc - 1)
+      if (abs(v - floor(v) - 0.5_dp) < 1.0e-6_dp) then        ! on a north/south side
+        lo = min(max(floor(v), 0), nr - 1)
+        hi = min(lo + 1, nr - 1)
+        step = dsm%hgt(jc + 1, hi + 1) - dsm%hgt(jc + 1, lo + 1)
+        if (ieee_is_finite(step)) dhdv = step
+      end if
+      if (abs(u - floor(u) - 0.5_dp) < 1.0e-6_dp) then        ! on an east/west side
+        lo = min(max(floor(u), 0), nc - 1)
+        hi = min(lo + 1, nc - 1)
+        step = dsm%hgt(hi + 1, ic + 1) - dsm%hgt(lo + 1, ic + 1)
+        if (ieee_is_finite(step)) dhdu = step
+      end if
+    end if
+    gy = dhdv / (dsm%dlat * my)          ! per metre north (the sign of dlat included)
+    gx = dhdu / (dsm%dlon * mx)          ! per metre east
+  end subroutine dsm_gradient
+
+  !> Value, surface kind and local incidence of n simulated pixels from their
+  !> rays' hits (OpenMP over pixels; results identical for any thread count).
+  !>
+  !> Inputs: dsm, gnd (bare-earth heights on the DSM grid, NaN = unknown), o
+  !> (ortho-image), opt; lat, lon (radians), h (geodetic height of the hit),
+  !> hsurf (DSM height H at the hit; above h on a "nearest" cell side), hit
+  !> (1 where the ray hit), l(3, n) ray directions (ECR, any non-zero length);
+!> threads (0: all).
+  !> Outputs: val(nb, n) the pixel values (opt%fill where not hit or NaN),
+  !> kind(n) (kind_* codes), locinc(n) the angle between -l and the surface
+  !> normal used (radians; NaN where not hit).
+  subroutine sim_shade(dsm, gnd, o, opt, n, lat, lon, h, hsurf, hit, l, threads, val, kind, locinc)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: gnd(:, :)
+    type(ortho_t), intent(in) :: o
+    type(sim_options_t), intent(in) :: opt
+    integer, intent(in) :: n, hit(n), threads
+    real(dp), intent(in) :: lat(n), lon(n), h(n), hsurf(n), l(3, n)
+    real(dp), intent(out) :: val(o%nb, n), locinc(n)
+    integer, intent(out) :: kind(n)
+    integer :: k, nth
+    nth = 1
+    !$ nth = threads
+    !$ if (nth <= 0) nth = omp_get_max_threads()
+    !$omp parallel do num_threads(nth) schedule(static, 256) default(shared) private(k)
+    do k = 1, n
+      if (hit(k) /= 1) then
+        val(:, k) = opt%fill
+        kind(k) = kind_none
+        locinc(k) = ieee_value(0.0_dp, ieee_quiet_nan)
+      else
+        call shade_one(dsm, gnd, o, opt, lat(k), lon(k), h(k), hsurf(k), l(:, k), val(:, k), kind(k), locinc(k))
+      end if
+    end do
+    !$omp end parallel do
+  end subroutine sim_shade
+
+  !> One pixel of sim_shade.
+  pure subroutine shade_one(dsm, gnd, o, opt, lat, lon, h, hsurf, l, val, kind, locinc)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: gnd(:, :)
+    type(ortho_t), intent(in) :: o
+    type(sim_options_t), intent(in) :: opt
+    real(dp), intent(in) :: lat, lon, h, hsurf, l(3)
+    real(dp), intent(out) :: val(o%nb), locinc
+    integer, intent(out) :: kind
+    real(dp) :: sl, cl, so, co, e(3), nv(3), up(3), w, my, mx, u, v, gx, gy, g2, gn, horiz(3), nrm(3)
+    real(dp) :: cosi, ground, sun(3), fac, az, el, lu(3)
+    logical :: wall
+    lu = l / sqrt(sum(l * l))                        ! any length: the caller's directions
+    sl = sin(lat)
+    cl = cos(lat)
+    so = sin(lon)
+    co = cos(lon)
+    e = [-so, co, 0.0_dp]
+    nv = [-sl * co, -sl * so, cl]
+    up = [cl * co, cl * so, sl]
+    ! metres per radian of latitude (M + h) and of longitude ((N + h) cos lat)
+    w = sqrt(1.0_dp - dsm%e2 * sl * sl)
+    my = dsm%a * (1.0_dp - dsm%e2) / w**3 + h
+    mx = (dsm%a / w + h) * cl
+    call dsm_grid_uv(dsm, lat, lon, u, v)
+    call dsm_gradient(dsm, u, v, my, mx, gx, gy)
+    g2 = gx * gx + gy * gy
+    ! steeper than wall_slope <=> cos(slope) = 1/sqrt(1 + g^2) < cos(wall_slope)  [sim note 1]
+    wall = 1.0_dp / sqrt(1.0_dp + g2) < opt%cos_wall
+    if (dsm%interp == interp_nearest) wall = wall .and. (hsurf - h > 1.0e-6_dp)      ! [sim note 3]
+    gn = sqrt(max(g2, 1.0e-300_dp))
+    horiz = -(gx / gn) * e - (gy / gn) * nv          ! outward horizontal: downhill
+    if (wall) then
+      nrm = horiz
+    else if (dsm%interp == interp_nearest) then
+      nrm = up                                       ! flat tops
+    else
+      nrm = -gx * e - gy * nv + up
+      nrm = nrm / sqrt(sum(nrm * nrm))
+    end if
+    cosi = min(max(-sum(lu * nrm), -1.0_dp), 1.0_dp)
+    locinc = acos(cosi)
+    ground = grid_bilinear(gnd, u, v)
+    if (wall) then
+      kind = kind_wall
+    else if (h - ground > opt%roof_min) then          ! false when the ground is unknown (NaN)
+      kind = kind_roof
+    else
+      kind = kind_ground
+    end if
+    call ortho_sample(o, lat, lon, val)
+    if (wall .and. opt%walls == walls_interpolate) call wall_value(dsm, o, opt, lat, lon, h, gx / gn, gy / gn, &
+                                                                   my, mx, val)
+    if (opt%shading == shading_lambert) then
+      if (opt%sun_mode == sun_azel) then
+        az = opt%sun(1)
+        el = opt%sun(2)
+        sun = cos(el) * (sin(az) * e + cos(az) * nv) + sin(el) * up
+      else
+        sun = opt%sun
+      end if
+      fac = opt%ambient + (1.0_dp - opt%ambient) * max(0.0_dp, sum(nrm * sun))
+      val = val * fac
+    end if
+    where (.not. ieee_is_finite(val)) val = opt%fill
+  end subroutine shade_one
+
+  !> Wall texture [sim note 2]: linear in height between the ortho value at the
+  !> roof edge (one sample inside the building, against the outward normal) and
+  !> at the wall's foot (one sample outside); half a cell for "nearest", one
+  !> cell for "bilinear". A sample off the ortho-image: the other one, then
+  !> the plain value `val` (input) at the hit.
+  pure subroutine wall_value(dsm, o, opt, lat, lon, h, dx, dy, my, mx, val)
+    type(dsm_t), intent(in) :: dsm
+    type(ortho_t), intent(in) :: o
+    type(sim_options_t), intent(in) :: opt
+    real(dp), intent(in) :: lat, lon, h, dx, dy, my, mx
+    real(dp), intent(inout) :: val(o%nb)
+    real(dp) :: step_m, cell_m, h_top, h_foot, t, v_top(o%nb), v_foot(o%nb), mix(o%nb), lat_in, lon_in
+    real(dp) :: lat_out, lon_out
+    integer :: code, b
+    cell_m = abs(dx) * opt%cell_x + abs(dy) * opt%cell_y
+    step_m = merge(0.5_dp, 1.0_dp, dsm%interp == interp_nearest) * max(cell_m, 1.0e-9_dp)
+    lat_in = lat + dy * step_m / my
+    lon_in = lon + dx * step_m / mx
+    lat_out = lat - dy * step_m / my
+    lon_out = lon - dx * step_m / mx
+    call dsm_height(dsm, lat_in, lon_in, h_top, code)
+    call dsm_height(dsm, lat_out, lon_out, h_foot, code)
+    call ortho_sample(o, lat_in, lon_in, v_top)
+    call ortho_sample(o, lat_out, lon_out, v_foot)
+    t = (h - h_foot) / (h_top - h_foot)
+    if (ieee_is_finite(t)) then
+      t = min(max(t, 0.0_dp), 1.0_dp)
+    else
+      t = 0.5_dp
+    end if
+    mix = (1 - t) * v_foot + t * v_top
+    do b = 1, o%nb
+      if (ieee_is_finite(mix(b))) then
+        val(b) = mix(b)
+      else if (ieee_is_finite(v_top(b))) then
+        val(b) = v_top(b)
+      else if (ieee_is_finite(v_foot(b))) then
+        val(b) = v_foot(b)
+      end if
+    end do
+  end subroutine wall_value
+
+end module pi_simulate
