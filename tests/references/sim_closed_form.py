@@ -660,3 +660,82 @@ def hidden_area(scene: BoxScene, geom: PushbroomGeometry):
     C = scene.corners_local()
     width = np.ptp(C @ geom.along)
     return scene.h * np.tan(np.radians(geom.theta)) * width, width
+
+
+# ------------------------------------------------------------- ortho-images
+def ortho_bilinear(values, lat_first, lon_first, dlat, dlon, lat, lon):
+    """The contract's ortho sampling: bilinear between the four surrounding pixel centres.
+
+    ``values`` (nrows, ncols[, bands]); NaN outside the rectangle of centres.
+    Returns (N,) or (N, bands).
+    """
+    v = np.asarray(values, float)
+    lat = np.asarray(lat, float).ravel()
+    lon = np.asarray(lon, float).ravel()
+    nr, nc = v.shape[:2]
+    fi = (lat - lat_first) / dlat
+    fj = (lon - lon_first) / dlon
+    good = np.isfinite(fi) & np.isfinite(fj) & (fi >= 0) & (fi <= nr - 1) & (fj >= 0) & (fj <= nc - 1)
+    fi = np.where(good, fi, 0.0)
+    fj = np.where(good, fj, 0.0)
+    i0 = np.clip(np.floor(fi).astype(int), 0, max(nr - 2, 0))
+    j0 = np.clip(np.floor(fj).astype(int), 0, max(nc - 2, 0))
+    wi, wj = fi - i0, fj - j0
+    i1, j1 = np.minimum(i0 + 1, nr - 1), np.minimum(j0 + 1, nc - 1)
+    if v.ndim == 3:
+        wi, wj = wi[:, None], wj[:, None]
+    out = ((1 - wi) * (1 - wj) * v[i0, j0] + (1 - wi) * wj * v[i0, j1]
+           + wi * (1 - wj) * v[i1, j0] + wi * wj * v[i1, j1])
+    bad = ~good if v.ndim == 2 else ~good[:, None]
+    return np.where(bad, np.nan, out)
+
+
+def chord(scene: BoxScene, geom: PushbroomGeometry, v):
+    """Where the ground-plane line {u (-a) + v along} crosses the footprint: (e, f) in u, or (nan, nan)."""
+    C = scene.corners_local()
+    lo, hi = -np.inf, np.inf
+    for k in range(4):
+        P, Q = C[k], C[(k + 1) % 4]
+        d = Q - P
+
+        def cr(x):
+            return d[0] * (x[1] - P[1]) - d[1] * (x[0] - P[0])
+
+        x0 = v * geom.along
+        c0 = cr(x0)
+        c1 = cr(x0 - geom.a) - c0  # affine in u
+        if abs(c1) < 1e-15:
+            if c0 < 0:
+                return np.nan, np.nan
+            continue
+        r = -c0 / c1
+        if c1 > 0:
+            lo = max(lo, r)
+        else:
+            hi = min(hi, r)
+    return (lo, hi) if lo < hi else (np.nan, np.nan)
+
+
+def line_measures(scene: BoxScene, geom: PushbroomGeometry, surface, hit_u, min_chord=None):
+    """Per image line crossing the box (chord >= ``min_chord``, default 2 pixels), in metres.
+
+    Columns: wall width (count of wall pixels x pixel), first roof pixel's u
+    minus the near crossing e, last roof pixel's u minus the far crossing f,
+    first ground hit beyond the box (its u from the hit point) minus f. Each
+    should be h tan(theta) to within one pixel. ``surface`` (nlines, npixels)
+    classes, ``hit_u`` (nlines, npixels) the hits' u coordinates.
+    """
+    min_chord = 2 * geom.pixel if min_chord is None else min_chord
+    rows = []
+    for k, v in enumerate(geom.v):
+        e, f = chord(scene, geom, v)
+        if not np.isfinite(e) or f - e < min_chord:
+            continue
+        sk = surface[k]
+        roof = np.flatnonzero(sk == ROOF)
+        beyond = hit_u[k][(sk == GROUND) & (geom.u > f)]
+        rows.append((np.count_nonzero(sk == WALL) * geom.pixel,
+                     geom.u[roof[0]] - e if roof.size else np.nan,
+                     geom.u[roof[-1]] - f if roof.size else np.nan,
+                     beyond.min() - f if beyond.size else np.nan))
+    return np.array(rows)
