@@ -171,3 +171,295 @@ def test_reference_expected_occlusion_matches_caster():
     ok = margin[sel] > R.OCCLUSION_TOLERANCE
     assert hid[sel].sum() > 1000
     assert np.array_equal(blocked[ok], hid[sel][ok])
+
+
+# ======================================================= the implementation
+BACKPLANES = ("lat", "lon", "height", "distance", "incidence", "local_incidence")
+
+
+@pytest.mark.parametrize("case", SCENARIOS, ids=IDS)
+def test_hits_match_reference_every_pixel(case):
+    """valid == reference hit; sim.p within 1 cm of the caster's exact hit; the backplanes agree."""
+    scene, geom, ref, shape = scenario(*case)
+    sim = simulated(*case)[0]
+    valid = _a(sim.valid)
+    assert valid.shape == shape
+    assert np.array_equal(valid.ravel(), ref.cls >= 0)
+    assert valid.all()  # every ray of these scenes hits
+    p = _a(sim.p).reshape(-1, 3)
+    dp = np.linalg.norm(p - ref.p, axis=1)
+    assert dp.max() < 0.01
+    s = np.repeat(geom.s, shape[1], axis=0)
+    dist = _a(sim.distance).ravel()
+    assert np.max(np.abs(dist - ref.t)) < 1e-5  # contract: 1e-6 m along the ray (each side)
+    assert np.max(np.abs(dist - np.linalg.norm(p - s, axis=1))) < 1e-6
+    lat, lon, hgt = (_a(getattr(sim, k)).ravel() for k in ("lat", "lon", "height"))
+    q = R.to_ecr(lat, lon, hgt)
+    assert np.max(np.linalg.norm(q - ref.p, axis=1)) < 0.01
+    assert np.max(np.abs(hgt - ref.height)) < 0.01
+    assert np.max(np.abs(_a(sim.incidence).ravel() - ref.incidence)) < 1e-6
+    far = ref.edge_distance > 0.01  # the normal of a hit within 1 cm of an edge may be either face's
+    assert np.max(np.abs(_a(sim.local_incidence).ravel()[far] - ref.local_incidence[far])) < 1e-6
+
+
+@pytest.mark.parametrize("case", SCENARIOS, ids=IDS)
+def test_surface_class_agrees_with_caster(case):
+    """sim.surface == the caster's class except where the ray passes within 1e-6 m of a box edge."""
+    scene, geom, ref, shape = scenario(*case)
+    surface = _a(simulated(*case)[0].surface).ravel()
+    bad = surface != ref.cls
+    excused = ref.edge_distance < 1e-6 + scene.edge_sag_bound()
+    assert np.count_nonzero(bad & ~excused) == 0, (
+        f"{np.count_nonzero(bad)} class disagreements, {np.count_nonzero(bad & ~excused)} not at an edge")
+    # and the reference classes are all present where they should be
+    counts = [np.count_nonzero(surface == k) for k in (R.GROUND, R.ROOF, R.WALL)]
+    assert counts[0] > 1000 and counts[1] > 1000
+    if case[2] > 0:
+        assert counts[2] > 0
+
+
+@pytest.mark.parametrize("case", SCENARIOS, ids=IDS)
+def test_closed_form_bands_in_simulated_image(case):
+    """Roof displacement, visible wall width and hidden ground strip = h tan(theta), within one pixel.
+
+    Measured on every image line that crosses the box: wall width = wall
+    pixels (sim.surface) x pixel; roof displacement = first/last roof pixel
+    minus the box's near/far crossing of that line, and per roof pixel its
+    nominal ground point minus its hit (sim.lat/lon); hidden strip = first
+    ground hit (sim.lat/lon) beyond the box minus the far crossing; and in
+    sim.image the centroid of the roof-coloured pixels minus the footprint's.
+    """
+    h, H0, theta, az = case
+    scene, geom, ref, shape = scenario(*case)
+    sim = simulated(*case)[0]
+    d = R.expected_bands(h, theta)
+    p = geom.pixel
+    surface = _a(sim.surface)
+    hu, hv = local_u(scene, geom, _a(sim.lat), _a(sim.lon), _a(sim.height))
+    m = R.line_measures(scene, geom, surface, hu)
+    assert len(m) > 40
+    assert np.all(np.abs(m[:, 0] - d["wall_width"]) <= p + SLACK), m[:, 0]
+    assert np.all(np.abs(m[:, 1] - d["roof_displacement"]) <= p + SLACK), m[:, 1]
+    assert np.all(np.abs(m[:, 2] - d["roof_displacement"]) <= p + SLACK), m[:, 2]
+    assert np.all(np.abs(m[:, 3] - d["hidden_strip"]) <= p + SLACK), m[:, 3]
+    # per roof pixel, from the hits
+    roof = surface == R.ROOF
+    U = np.broadcast_to(geom.u[None, :], shape)
+    V = np.broadcast_to(geom.v[:, None], shape)
+    assert abs(np.mean((U - hu)[roof]) - d["roof_displacement"]) <= p
+    assert np.all(np.abs((U - hu)[roof] - d["roof_displacement"]) < 0.02)
+    assert np.all(np.abs((V - hv)[roof]) < 0.02)
+    # in the image: the roof colour (1.0; ground 0.2, walls="ortho" walls <= 0.6) moved away from the sensor
+    img = _a(sim.image)
+    bright = img > 0.8
+    C = scene.corners_local()
+    du = np.mean(U[bright]) - np.mean(C @ (-geom.a))
+    dv = np.mean(V[bright]) - np.mean(C @ geom.along)
+    assert abs(du - d["roof_displacement"]) <= p and abs(dv) <= p
+    # every pixel (walls="ortho" included): the contract's bilinear sample at the caster's hit
+    vals, grid = simulated(*case)[1:3]
+    want = R.ortho_bilinear(vals, *grid, ref.lat, ref.lon).reshape(shape)
+    assert np.max(np.abs(img - want)) < 1e-5  # 1e-6 m of hit error moves a 1.6/m ramp by 1.6e-6
+
+
+@pytest.mark.parametrize("case", SCENARIOS, ids=IDS)
+def test_occlusion_is_the_hidden_strip(case):
+    """sim.occlusion on the ortho grid = the sweep of the footprint away from the sensor (C6).
+
+    Per pixel (disagreements only within 3 cm of the shadow's edge), and as a
+    width: the occluded length along every line parallel to the view that
+    crosses the box = h tan(theta) within one ortho pixel (0.5 m, plus the
+    0.02 m sampling step and SLACK).
+    """
+    h, H0, theta, az = case
+    scene, geom, ref, shape = scenario(*case)
+    sim, vals, grid, LA, LO = simulated(*case)
+    occ = _a(sim.occlusion)
+    assert occ.shape == vals.shape and occ.dtype == bool
+    hid, margin, on_roof = R.expected_occlusion(scene, geom, LA, LO)
+    bad = occ.ravel() != hid
+    assert np.count_nonzero(bad & (margin >= R.OCCLUSION_TOLERANCE)) == 0, np.count_nonzero(bad)
+    strip = R.strip_along_lines(scene, geom, occ, grid)
+    assert len(strip) > 40
+    assert np.all(np.abs(strip - R.expected_bands(h, theta)["hidden_strip"]) <= 0.5 + 0.02 + SLACK), strip
+    # footprint: ortho centres more than one image pixel inside the image's ground grid are in it,
+    # those more than one pixel outside are not
+    fu, fv = local_u(scene, geom, LA, LO, np.full(LA.shape, scene.H0))
+    fp = _a(sim.footprint)
+    inner = ((fu > geom.u[0] + geom.pixel) & (fu < geom.u[-1] - geom.pixel)
+             & (fv > geom.v[0] + geom.pixel) & (fv < geom.v[-1] - geom.pixel))
+    outer = ((fu < geom.u[0] - geom.pixel) | (fu > geom.u[-1] + geom.pixel)
+             | (fv < geom.v[0] - geom.pixel) | (fv > geom.v[-1] + geom.pixel))
+    assert fp[inner].all() and not fp[outer].any()
+
+
+@pytest.mark.parametrize("h", [5.0, 20.0, 60.0])
+def test_nadir_view_shows_no_walls(h):
+    """Rays along each aim point's ellipsoid normal: no wall pixel; the roof exactly over the footprint."""
+    scene = R.BoxScene(h=h, H0=0.0 if h != 20.0 else 35.0)
+    s, l, lat, lon = R.nadir_pushbroom(scene)
+    vals, grid, LA, LO = two_level_ortho(scene)
+    sim = pi.simulate_image(scene.dsm(), pi.OrthoImage.from_array(vals, *grid), pi.Pushbroom(s, l),
+                            ground=scene.ground())
+    surface = _a(sim.surface).ravel()
+    assert np.count_nonzero(surface == R.WALL) == 0
+    assert np.array_equal(surface == R.ROOF, scene.in_footprint(lat, lon))
+    ref = R.cast(scene, s, l.reshape(-1, 3))
+    assert np.array_equal(ref.cls, surface)
+    assert np.max(np.linalg.norm(_a(sim.p).reshape(-1, 3) - ref.p, axis=1)) < 0.01
+    assert np.max(np.abs(_a(sim.incidence).ravel())) < 1e-5  # arccos near 1: 1e-16 in cos is 1e-6 deg
+
+
+LAMBERT_VIEWS = [(9.0, 90.0), (25.0, 90.0), (9.0, 315.0), (25.0, 315.0)]
+
+
+@pytest.mark.parametrize("theta,az", LAMBERT_VIEWS, ids=[f"th{t:g}-az{a:g}" for t, a in LAMBERT_VIEWS])
+def test_lambert_sun_behind_sensor_walls_are_cos_incidence(theta, az):
+    """shading="lambert", sun = -l (ECR), ambient 0, ortho of ones: pixel = cos(local incidence), 1e-9.
+
+    Exactly parallel rays (one pixel per line, C4) so that -l is the Sun for
+    every pixel. Walls: cos of the angle between -l and the wall's outward
+    horizontal normal (the caster's), = sin(theta) cos(azimuth - wall azimuth)
+    in closed form; roofs and ground: n . (-l) with n the ellipsoid normal.
+    """
+    scene = R.BoxScene(h=20.0, H0=35.0)
+    s, l, l0, u, v = R.parallel_pushbroom(scene, theta, az)
+    lat_first, lon_first, dlat, dlon, lat, lon = ortho_grid(scene, 2)
+    ones = np.ones((lat.size, lon.size))
+    sim = pi.simulate_image(scene.dsm(), pi.OrthoImage.from_array(ones, lat_first, lon_first, dlat, dlon),
+                            pi.Pushbroom(s, l), shading="lambert", sun=-l0, ambient=0.0,
+                            walls="interpolate", ground=scene.ground())
+    ref = R.cast(scene, s, l.reshape(-1, 3))
+    img = _a(sim.image).ravel()
+    surface = _a(sim.surface).ravel()
+    far = ref.edge_distance > 1e-6 + scene.edge_sag_bound()
+    assert np.array_equal(surface[far], ref.cls[far])
+    wall = (surface == R.WALL) & far
+    assert wall.sum() > 50
+    cos_impl = np.cos(np.radians(_a(sim.local_incidence).ravel()))
+    cos_ref = np.sum(ref.normal * (-l0), axis=1)
+    assert np.max(np.abs(img[wall] - cos_impl[wall])) < 1e-9
+    assert np.max(np.abs(img[wall] - cos_ref[wall])) < 1e-9
+    wall_az = np.array([180.0, 90.0, 0.0, 270.0])[ref.wall[wall]]
+    closed = np.sin(np.radians(theta)) * np.cos(np.radians(az - wall_az))
+    assert np.max(np.abs(img[wall] - np.maximum(closed, 0.0))) < 1e-4
+    flat = ~wall & far & (surface >= 0)
+    assert np.max(np.abs(img[flat] - cos_ref[flat])) < 1e-9
+    assert np.max(np.abs(img[flat] - np.cos(np.radians(theta)))) < 1e-4
+
+
+def test_wall_interpolation_is_linear_in_height():
+    """walls="interpolate": on the east wall, seen from the east, with an ortho that varies only east-west
+    (1.0 over the building's longitudes, 0.2 elsewhere), the wall value is affine in the hit height,
+    from the roof-edge colour (>= 0.6, bilinear just inside) at the top to the ground colour
+    (<= 0.6, just outside) at the foot."""
+    scene = R.BoxScene(h=20.0, H0=35.0)
+    geom = R.pushbroom(scene, 25.0, 90.0)
+    lat_first, lon_first, dlat, dlon, lat, lon = ortho_grid(scene, 2)
+    LA, LO = np.meshgrid(lat, lon, indexing="ij")
+    vals = np.where((LO >= scene.lon_w) & (LO <= scene.lon_e), 1.0, 0.2)
+    sim = pi.simulate_image(scene.dsm(), pi.OrthoImage.from_array(vals, lat_first, lon_first, dlat, dlon),
+                            pi.Pushbroom(geom.s, geom.l), walls="interpolate", ground=scene.ground())
+    nl, npx = geom.l.shape[:2]
+    ref = R.cast(scene, np.repeat(geom.s, npx, axis=0), geom.l.reshape(-1, 3))
+    surface = _a(sim.surface).ravel()
+    east = (surface == R.WALL) & (ref.wall == 1) & (ref.edge_distance > 0.01)
+    assert east.sum() > 200
+    z = _a(sim.height).ravel()[east]
+    val = _a(sim.image).ravel()[east]
+    A = np.stack([np.ones_like(z), z - scene.H0], axis=1)
+    coef, *_ = np.linalg.lstsq(A, val, rcond=None)
+    assert np.max(np.abs(A @ coef - val)) < 1e-6  # "just inside/outside" moves with latitude: ~1e-8
+    top, foot = coef[0] + coef[1] * scene.h, coef[0]
+    assert 0.6 - 1e-9 <= top <= 1.0 + 1e-12 and 0.2 - 1e-12 <= foot <= 0.6 + 1e-9 and top > foot
+
+
+def _frame_rays(scene, position, lat, lon, height):
+    aim = R.to_ecr(lat, lon, height)
+    return R.unit(aim - position)
+
+
+def test_frame_camera_reproduces_ortho_on_bare_ground():
+    """A frame camera 1.5 km up whose rays aim at ortho pixel centres: where the first hit is that
+    centre (bare, unhidden ground: the caster) the image equals the ortho value to 1e-6 relative;
+    elsewhere (roof, wall, hidden ground) it is the contract's bilinear sample at the caster's hit."""
+    scene = R.BoxScene(h=20.0, H0=35.0)
+    lat_first, lon_first, dlat, dlon, lat, lon = ortho_grid(scene, 1)  # 1 m ortho, quarter-cell offset
+    rng = np.random.default_rng(12)
+    vals = rng.uniform(1.0, 2.0, (lat.size, lon.size))
+    ic = np.argmin(np.abs(lat - scene.lat0))
+    jc = np.argmin(np.abs(lon - scene.lon0))
+    rows = np.arange(ic - 50, ic + 50)
+    cols = np.arange(jc - 50, jc + 50)
+    LA, LO = np.meshgrid(lat[rows], lon[cols], indexing="ij")
+    position = R.to_ecr(scene.lat0 - 0.002, scene.lon0, 1500.0)  # about 220 m south: oblique
+    l = _frame_rays(scene, position, LA, LO, scene.H0)
+    sim = pi.simulate_image(scene.dsm(), pi.OrthoImage.from_array(vals, lat_first, lon_first, dlat, dlon),
+                            pi.FrameCamera(position, l), walls="ortho", ground=scene.ground())
+    ref = R.cast(scene, np.broadcast_to(position, (l.size // 3, 3)), l.reshape(-1, 3))
+    img = _a(sim.image).ravel()
+    aim = R.to_ecr(LA.ravel(), LO.ravel(), scene.H0)
+    bare = (ref.cls == R.GROUND) & (np.linalg.norm(ref.p - aim, axis=1) < 1e-6)
+    assert bare.sum() > 8000
+    want = vals[np.ix_(rows, cols)].ravel()
+    assert np.max(np.abs(img[bare] / want[bare] - 1.0)) < 1e-6
+    other = ~bare & (ref.edge_distance > 0.01)
+    assert other.sum() > 500
+    samp = R.ortho_bilinear(vals, lat_first, lon_first, dlat, dlon, ref.lat[other], ref.lon[other])
+    assert np.max(np.abs(img[other] / samp - 1.0)) < 1e-5
+
+
+def test_fill_and_valid_for_rays_that_miss_the_dsm():
+    """Rays to the sky (miss), beyond the DSM edge (left the DSM) and into a no-data patch are
+    invalid: image = fill in every band, surface -1, backplanes NaN; the others are ground hits
+    with the 3-band ortho sampled at the hit."""
+    scene = R.BoxScene(h=20.0, H0=35.0)
+    z = scene.heights()
+    z[20:41, 20:41] = np.nan
+    dsm = pi.GeodeticDSM.from_array(z, scene.lat_first, scene.lon_first, scene.dlat, scene.dlon,
+                                    interpolation="nearest")
+    lat_first, lon_first, dlat, dlon, lat, lon = ortho_grid(scene, 2)
+    rng = np.random.default_rng(3)
+    base = rng.uniform(1.0, 2.0, (lat.size, lon.size))
+    vals = np.stack([base, 2 * base, base + 5], axis=-1)
+    position = R.to_ecr(scene.lat0, scene.lon0, 1500.0)
+    e, n, u = R.enu_vectors(scene.lat0, scene.lon0)
+    la_min, la_max, lo_min, lo_max = scene.extent
+    k = np.arange(5)
+    sky = R.unit(u + 0.1 * (k[:, None] - 2) * e)
+    outside = _frame_rays(scene, position, np.full(5, la_max + 0.0005), scene.lon0 + (k - 2) * 1e-4,
+                          np.full(5, scene.H0))
+    nodata = _frame_rays(scene, position, scene.row_lat(28 + k), scene.col_lon(np.full(5, 30)),
+                         np.full(5, scene.H0))
+    ground = _frame_rays(scene, position, scene.lat0 + (k - 2) * 3e-4 + 1.1e-6, np.full(5, scene.lon0 + 4e-4),
+                         np.full(5, scene.H0))
+    l = np.stack([sky, outside, nodata, ground])
+    sim = pi.simulate_image(dsm, pi.OrthoImage.from_array(vals, lat_first, lon_first, dlat, dlon),
+                            pi.FrameCamera(position, l), fill=FILL, ground=scene.ground())
+    valid = _a(sim.valid)
+    assert valid.shape == (4, 5)
+    assert not valid[:3].any() and valid[3].all()
+    img = _a(sim.image)
+    assert img.shape == (4, 5, 3)
+    assert np.all(img[:3] == FILL)
+    assert np.all(_a(sim.surface)[:3] == -1) and np.all(_a(sim.surface)[3] == R.GROUND)
+    for name in BACKPLANES:
+        b = _a(getattr(sim, name))
+        assert np.all(np.isnan(b[:3])), name
+        assert np.all(np.isfinite(b[3])), name
+    assert np.all(np.isnan(_a(sim.p)[:3]))
+    ref = R.cast(scene, np.broadcast_to(position, (5, 3)), ground)
+    samp = R.ortho_bilinear(vals, lat_first, lon_first, dlat, dlon, ref.lat, ref.lon)
+    assert np.max(np.abs(img[3] / samp - 1.0)) < 1e-6
+
+
+@pytest.mark.parametrize("case", SCENARIOS, ids=IDS)
+def test_reference_strip_measure_on_expected_raster(case):
+    """strip_along_lines on the reference's own hidden raster gives h tan(theta) within one ortho pixel."""
+    h, H0, theta, az = case
+    scene, geom, ref, shape = scenario(*case)
+    vals, grid, LA, LO = two_level_ortho(scene)
+    hid = R.expected_occlusion(scene, geom, LA, LO)[0].reshape(LA.shape)
+    strip = R.strip_along_lines(scene, geom, hid, grid)
+    assert len(strip) > 40
+    assert np.all(np.abs(strip - R.expected_bands(h, theta)["hidden_strip"]) <= 0.5 + 0.02 + SLACK)

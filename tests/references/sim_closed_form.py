@@ -739,3 +739,31 @@ def line_measures(scene: BoxScene, geom: PushbroomGeometry, surface, hit_u, min_
                      geom.u[roof[-1]] - f if roof.size else np.nan,
                      beyond.min() - f if beyond.size else np.nan))
     return np.array(rows)
+
+
+def strip_along_lines(scene: BoxScene, geom: PushbroomGeometry, raster, grid, step=0.02, spacing=0.5):
+    """Length (m) of True along lines parallel to the view, read from a boolean ortho-grid raster.
+
+    For lines {u (-a) + v along} every ``spacing`` m across the footprint
+    (chord >= 1 m), the segment from 2 m before the far crossing f to 3 m
+    beyond f + h tan(theta) is sampled every ``step`` m and each sample takes
+    the value of the raster pixel it falls in (nearest centre). Returns one
+    length per line: the hidden strip, h tan(theta) up to the raster's pixel.
+    ``grid`` = (lat_first, lon_first, dlat, dlon) of the raster.
+    """
+    lat_first, lon_first, dlat, dlon = grid
+    C = scene.corners_local()
+    cv = C @ geom.along
+    d = scene.h * np.tan(np.radians(geom.theta))
+    out = []
+    for v in np.arange(cv.min() + 0.5 * spacing, cv.max(), spacing):
+        e, f = chord(scene, geom, v)
+        if not np.isfinite(e) or f - e < 1.0:
+            continue
+        u = np.arange(f - 2.0, f + d + 3.0, step)
+        xy = u[:, None] * (-geom.a) + v * geom.along
+        lat, lon, _ = to_geodetic(scene.frame.to_ecr(np.concatenate([xy, np.zeros((len(u), 1))], axis=1)))
+        i = np.rint((lat - lat_first) / dlat).astype(int)
+        j = np.rint((lon - lon_first) / dlon).astype(int)
+        out.append(np.count_nonzero(raster[i, j]) * step)
+    return np.array(out)
