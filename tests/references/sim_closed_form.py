@@ -64,8 +64,8 @@ by the contract's 1e-6 m, not by the reference.
 ``edge_distance`` is the distance from the ray (a line) to the nearest of
 the box's 12 edges, each taken as the straight chord between its exact ECR
 corners (vertical edges are exactly straight: ellipsoid normals; horizontal
-edges are arcs whose chord sag is below ``edge_sag_bound``, about 3e-5 m for
-a 36 m edge). A class disagreement is excused only where
+edges are arcs whose chord sag is below ``edge_sag_bound``, 5e-5 m for
+the 36 m edges). A class disagreement is excused only where
 edge_distance < 1e-6 m + edge_sag_bound.
 
 Choices made where the contract is silent (numbered; the report repeats them)
@@ -95,8 +95,30 @@ C6. Expected occlusion (``expected_occlusion``): for a ground point q outside
     h tan(theta) away from the sensor (convex hull of the footprint and its
     shifted copy), with theta and the azimuth of the central ray; with the
     fan of rays this boundary is right to about 1.5 cm (h = 60 m), so points
-    within ``occlusion_tolerance`` (3 cm) of it are excused. Points on the
-    roof are visible (never occluded).
+    within ``OCCLUSION_TOLERANCE`` (3 cm) of it are excused. Points on the
+    roof are visible (never occluded). For the view from the north-west
+    (azimuth exactly 315 deg) the shadow's diagonal sides run through ortho
+    pixel centres (the 0.5 m ortho lattice is square and aligned with the
+    corners): those centres lie ON the boundary and are excused too.
+C7. The main scenes run with walls="ortho" so that the image-based roof
+    measure (roof colour 1.0, ground 0.2, threshold 0.8) is not blurred by
+    the wall ramp; walls="interpolate" is checked separately (Lambert, and
+    the ramp's linearity in height).
+C8. Where a pixel VALUE is compared to 1e-9 (Lambert), an image stored in a
+    narrower float type than float64 is compared to 4 ulp of that type
+    instead; the same quantity is also compared to 1e-9 through the float64
+    ``local_incidence`` backplane.
+C9. The hidden strip is measured in ``sim.occlusion`` along lines parallel to
+    the view (``strip_along_lines``), not as area / width: on a 0.5 m raster
+    the area of a shadow with 45 deg sides is off by up to 0.35 m of width,
+    the per-line length only by the pixel at the strip's far end.
+C10. "Within one pixel" is asserted as <= pixel + 1 cm (the fan of rays and
+    curvature move band edges by millimetres; the discretisation alone is
+    strictly below one pixel).
+
+Measured against pi.intersect(method="exact") (issue 11): the exact caster
+agrees to 2.8e-7 m on every pixel of the 15 pushbroom scenes; stage 1 (the
+tangent plane) to 1.5e-3 m, with identical classes.
 """
 
 from __future__ import annotations
@@ -138,7 +160,7 @@ def enu_vectors(lat_deg, lon_deg):
 def to_geodetic(p):
     """Exact (lat, lon, h) of ECR points (N, 3) via the public conversion."""
     p = np.asarray(p, dtype=np.float64).reshape(-1, 3)
-    good = np.all(np.isfinite(p), axis=1) & (np.linalg.norm(np.nan_to_num(p), axis=1) < 1e12)
+    good = np.all(np.isfinite(p) & (np.abs(p) < 1e12), axis=1)
     q = np.where(good[:, None], p, [WGS84_A, 0.0, 0.0])
     lat, lon, h = pi.ecef_to_geodetic(q, WGS84_A, WGS84_F, method="exact")
     return tuple(np.where(good, np.asarray(v, float), np.nan) for v in (lat, lon, h))
@@ -654,12 +676,6 @@ def expected_occlusion(scene: BoxScene, geom: PushbroomGeometry, lat, lon):
     hidden = in_hull & ~on_roof
     return hidden, np.minimum(dh, dc), on_roof
 
-
-def hidden_area(scene: BoxScene, geom: PushbroomGeometry):
-    """Closed-form area (m^2) of the hidden ground: h tan(theta) times the footprint's width across the view."""
-    C = scene.corners_local()
-    width = np.ptp(C @ geom.along)
-    return scene.h * np.tan(np.radians(geom.theta)) * width, width
 
 
 # ------------------------------------------------------------- ortho-images
