@@ -106,27 +106,24 @@ def write_outputs(sim, out: Path, stem: str = "simulated", netcdf: bool = True, 
 
     out = Path(out)
     written = [sim.save(out / f"{stem}.png")]
-    fig, ax = plt.subplots(figsize=(6, 6))
-    cmap = matplotlib.colors.ListedColormap(["black", "#6a8f3a", "#c0392b", "#f1c40f"])
-    ax.imshow(np.asarray(sim.surface), cmap=cmap, vmin=-1.5, vmax=2.5, interpolation="nearest")
-    ax.set_title("surface hit: black none, green ground, red roof, yellow wall", fontsize=9)
-    ax.set_xticks([])
-    ax.set_yticks([])
-    fig.tight_layout()
-    fig.savefig(out / f"{stem}_surface.png", dpi=100)
-    plt.close(fig)
-    written.append(out / f"{stem}_surface.png")
-    if sim.occlusion is not None:
+
+    def picture(name, data, cmap, vmin, vmax, title):
         fig, ax = plt.subplots(figsize=(6, 6))
-        ax.imshow(np.where(sim.occlusion, 2, np.where(sim.footprint, 1, 0)), cmap="gray_r", vmin=0, vmax=2,
-                  interpolation="nearest")
-        ax.set_title("ortho grid: grey footprint, black ground no pixel sees", fontsize=9)
+        ax.imshow(data, cmap=cmap, vmin=vmin, vmax=vmax, interpolation="nearest")
+        ax.set_title(title, fontsize=9)
         ax.set_xticks([])
         ax.set_yticks([])
         fig.tight_layout()
-        fig.savefig(out / f"{stem}_occlusion.png", dpi=100)
+        fig.savefig(out / name, dpi=100)
         plt.close(fig)
-        written.append(out / f"{stem}_occlusion.png")
+        written.append(out / name)
+
+    picture(f"{stem}_surface.png", np.asarray(sim.surface),
+            matplotlib.colors.ListedColormap(["black", "#6a8f3a", "#c0392b", "#f1c40f"]), -1.5, 2.5,
+            "surface hit: black none, green ground, red roof, yellow wall")
+    if sim.occlusion is not None:
+        picture(f"{stem}_occlusion.png", np.where(sim.occlusion, 2, np.where(sim.footprint, 1, 0)), "gray_r", 0, 2,
+                "ortho grid: grey footprint, black ground no pixel sees")
     if geotiff:
         try:
             written.append(sim.save(out / f"{stem}.tif"))

@@ -70,6 +70,18 @@ def _bilinear(base: dict, lat: np.ndarray, lon: np.ndarray) -> np.ndarray:
     return ((1 - fy) * ((1 - fx) * z[i, j] + fx * z[i, j + 1]) + fy * ((1 - fx) * z[i + 1, j] + fx * z[i + 1, j + 1]))
 
 
+def _base_terrain(base: str, lats: np.ndarray, lons: np.ndarray) -> np.ndarray:
+    """Heights above WGS-84 at the grid (lats x lons): the Jacksboro DEM
+    resampled bilinearly plus its geoid undulation, or flat (0)."""
+    if base == "jacksboro":
+        b = jacksboro_base()
+        la, lo = np.meshgrid(lats, lons, indexing="ij")
+        return _bilinear(b, la, lo) + b["geoid"]
+    if base == "flat":
+        return np.zeros((len(lats), len(lons)))
+    raise ValueError(f"base must be 'jacksboro' or 'flat', got {base!r}")
+
+
 def building_scene(n: int = 2048, seed: int = 0, lat0: float = 36.60, lon0: float = -84.30,
                    nblocks: int | None = None, towers: int | None = None, courtyards: int | None = None,
                    base: str = "jacksboro") -> dict:
@@ -88,14 +100,7 @@ def building_scene(n: int = 2048, seed: int = 0, lat0: float = 36.60, lon0: floa
     lat_first, lon_first = lat0 + (n - 1) * dlat, lon0          # north-west pixel centre
     lats = lat_first - np.arange(n) * dlat
     lons = lon_first + np.arange(n) * dlon
-    if base == "jacksboro":
-        b = jacksboro_base()
-        la, lo = np.meshgrid(lats, lons, indexing="ij")
-        ground = _bilinear(b, la, lo) + b["geoid"]
-    elif base == "flat":
-        ground = np.zeros((n, n))
-    else:
-        raise ValueError(f"base must be 'jacksboro' or 'flat', got {base!r}")
+    ground = _base_terrain(base, lats, lons)
     h = ground.copy()
     roof = np.zeros((n, n), dtype=np.int32)
     area = n * n
@@ -248,14 +253,7 @@ def paper_scene(size: int = 640, seed: int = 7, lat0: float = 36.52, lon0: float
     lat_first = lat0 + (n - 1) * dlat                                   # north-west pixel centre
     lats = lat_first - np.arange(n) * dlat
     lons = lon0 + np.arange(n) * dlon
-    if base == "jacksboro":
-        b = jacksboro_base()
-        la, lo = np.meshgrid(lats, lons, indexing="ij")
-        ground = _bilinear(b, la, lo) + b["geoid"]
-    elif base == "flat":
-        ground = np.zeros((n, n))
-    else:
-        raise ValueError(f"base must be 'jacksboro' or 'flat', got {base!r}")
+    ground = _base_terrain(base, lats, lons)
     h = ground.copy()
     roof = np.zeros((n, n), dtype=np.int32)
     rgb = _texture(n, n, rng)

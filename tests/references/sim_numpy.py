@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from planet_intersect.dsm import GeodeticDSM
-from planet_intersect.simulate import _bilinear, _grid_coords
+from planet_intersect.simulate import _bilinear, _grid_coords, _metres_per_degree
 
 
 def _enu(lat_deg, lon_deg):
@@ -23,16 +23,6 @@ def _enu(lat_deg, lon_deg):
     n = np.stack([-sl * co, -sl * so, cl], axis=-1)
     u = np.stack([cl * co, cl * so, sl], axis=-1)
     return e, n, u
-
-
-def _metres_per_degree(lat_deg, h, a, f):
-    """(north, east) metres per degree of latitude / longitude at (lat, h)."""
-    e2 = f * (2 - f)
-    s = np.sin(np.radians(lat_deg))
-    w = np.sqrt(1 - e2 * s * s)
-    m = a * (1 - e2) / w ** 3
-    n = a / w
-    return np.radians(1.0) * (m + h), np.radians(1.0) * (n + h) * np.cos(np.radians(lat_deg))
 
 
 class _Surface:
@@ -98,23 +88,6 @@ class _Surface:
             return None
         u, v = self.uv(lat, lon)
         return _bilinear(self.ground, u, v)
-
-
-def _opening_ground(dsm: GeodeticDSM, window_m: float) -> np.ndarray:
-    """Bare-earth estimate from the DSM by a grey-scale morphological opening
-    (erosion then dilation) with a square window about ``window_m`` wide: it
-    removes every raised object narrower than the window and keeps planar
-    slopes exactly [sim note 1]."""
-    from scipy import ndimage
-
-    h = np.asarray(dsm.heights, dtype=np.float64)
-    lat_mid = dsm.lat_first + 0.5 * (dsm.nrows - 1) * dsm.dlat
-    my, mx = _metres_per_degree(lat_mid, 0.0, dsm.a, dsm.f)
-    wy = max(3, int(math.ceil(window_m / (abs(dsm.dlat) * my))) | 1)
-    wx = max(3, int(math.ceil(window_m / (dsm.dlon * mx))) | 1)
-    filled = np.where(np.isfinite(h), h, np.nanmax(h) if np.isfinite(h).any() else 0.0)
-    return ndimage.grey_opening(filled, size=(wy, wx), mode="nearest")
-
 
 
 def shade_hits(surf: _Surface, ortho: OrthoImage, res, idx, l, walls, shading, sun_arr, ambient, cos_wall,
