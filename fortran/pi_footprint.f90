@@ -218,7 +218,7 @@ contains
     real(dp), allocatable :: w(:, :), ang(:, :)
     integer, allocatable :: buf(:)
     integer :: ilo, ihi, i, jlo, jhi, jj, j, k, nb, b, jlc, jhc
-    logical :: quick
+    logical :: quick, gamma_fast
     integer(i8) :: p0
     n = 0
     status = fp_ok
@@ -275,6 +275,9 @@ contains
     east = [-rhat(2), rhat(1), 0.0_dp]
     north = [-rhat(3)*rhat(1), -rhat(3)*rhat(2), 1.0_dp - rhat(3)*rhat(3)]
     pole = hypot(rhat(1), rhat(2))
+    ! every selected cell lies within theta of the sub-spacecraft point (module
+    ! header): below 30 deg and away from the poles the zenith angle is psi + gamma [note 16]
+    gamma_fast = theta < pi/6 - 1.0e-6_dp .and. pole > 1.0e-3_dp
     ! bearing of the frame's +y axis (the ground track, clockwise from north), for the azimuth
     if (fill .and. pole > 1.0e-12_dp) then
       track = atan2(dot_product(frame(:, 2), east), dot_product(frame(:, 2), north))
@@ -369,10 +372,17 @@ contains
                         d(:, p0 + 1:p0 + nb), scal(p0 + 1:p0 + nb, 1), scal(p0 + 1:p0 + nb, 2), &
                         gsh(:, p0 + 1:p0 + nb), w(:, 11), w(:, 12), w(:, 13), w(:, 14), w(:, 15), w(:, 16), w(:, 17))
       ! (3) the angles [note 15], each a branch-free loop over the row
-      call angles_soa(nb, w(:, 11), w(:, 12), w(:, 13), w(:, 1), w(:, 2), w(:, 3), ang(:, 1))    ! notes: cos z = r_C . d / (|r_C| |d|)
+      call angles_fixed(nb, w(:, 11), w(:, 12), w(:, 13), rhat, ang(:, 4))   ! notes: cos psi = d_hat . R_hat
+      if (gamma_fast) then
+        ! zenith angle = psi + gamma, gamma the cell's central angle from the sub-spacecraft
+        ! point (the exterior angle of the triangle centre-cell-spacecraft), with
+        ! sin gamma = rho / cos(beta) < 1/2 from the position angle's 2-vector [note 16]
+        call zenith_sum(nb, ang(:, 4), w(:, 17), 1.0_dp / pole, ang(:, 1))
+      else
+        call angles_soa(nb, w(:, 11), w(:, 12), w(:, 13), w(:, 1), w(:, 2), w(:, 3), ang(:, 1))  ! notes: cos z = r_C . d / (|r_C| |d|)
+      end if
       call angles_soa(nb, w(:, 11), w(:, 12), w(:, 13), w(:, 5), w(:, 6), w(:, 7), ang(:, 2))    ! areodetic normal (note 2)
       call angles_soa(nb, w(:, 11), w(:, 12), w(:, 13), w(:, 8), w(:, 9), w(:, 10), ang(:, 3))   ! notes: cos e = s_C . d_hat
-      call angles_fixed(nb, w(:, 11), w(:, 12), w(:, 13), rhat, ang(:, 4))   ! notes: cos psi = d_hat . R_hat
       call angles_north(nb, w(:, 14), w(:, 15), ang(:, 5))                    ! position angle (note 5)
       ! (4) the angles written out
       call store_angles(nb, ang(:, 1), ang(:, 2), ang(:, 3), ang(:, 4), ang(:, 5), w(:, 16), w(:, 17), &
@@ -514,6 +524,24 @@ contains
                            (hx(b) + vx(b))**2 + (hy(b) + vy(b))**2 + (hz(b) + vz(b))**2)
     end do
   end subroutine angles_soa
+
+  !> Zenith angles z = psi + gamma (radians), b = 1..nb, from the nadir angles psi and
+  !> the central angles gamma = asin(rho*icb) of the cells from the sub-spacecraft
+  !> point (rho = cos(beta) sin(gamma), icb = 1/cos(beta)); for sin gamma <= 1/2 only
+  !> (the caller's bound), where asin is fdlibm's kernel alone [note 16].
+  subroutine zenith_sum(nb, psi, rho, icb, z)
+    integer, intent(in) :: nb
+    real(dp), intent(in) :: psi(nb), rho(nb), icb
+    real(dp), intent(inout) :: z(nb)
+    real(dp) :: sg, q2
+    integer :: b
+    do b = 1, nb
+      sg = rho(b) * icb
+      q2 = sg*sg
+      z(b) = psi(b) + (sg + sg*(q2*(ps0 + q2*(ps1 + q2*(ps2 + q2*(ps3 + q2*(ps4 + q2*ps5)))))) / &
+                      (1.0_dp + q2*(qs1 + q2*(qs2 + q2*(qs3 + q2*qs4)))))
+    end do
+  end subroutine zenith_sum
 
   !> Angles (radians) between the unit vectors (hx, hy, hz)(b) and the unit vector v, b = 1..nb.
   subroutine angles_fixed(nb, hx, hy, hz, v, ang)
