@@ -215,7 +215,7 @@ contains
     integer, intent(out) :: status
     real(dp) :: rn, rhat(3), beta, lam, theta, psim, q, cmax, sb, cb, phi, sp, cp, rhs, dlam, gin, cin
     real(dp) :: east(3), north(3), dv(3), dist2, uk(3), pole, track, zeta2, a
-    real(dp), allocatable :: w(:, :), ang(:, :)
+    real(dp), allocatable :: w(:, :), cu(:, :), cr(:), cn(:, :), cs(:, :)
     integer, allocatable :: buf(:)
     integer :: ilo, ihi, i, jlo, jhi, jj, j, k, nb, b, jlc, jhc
     logical :: quick, gamma_fast
@@ -236,7 +236,7 @@ contains
       return
     end if
     rhat = r / rn
-    if (fill) allocate(buf(ncol), w(ncol, 17), ang(ncol, 5))
+    if (fill) allocate(buf(ncol), w(ncol, 12), cu(3, ncol), cr(ncol), cn(3, ncol), cs(3, ncol))
     ! the cone test without its square root (in_cone) only where zeta^2 is a normal number
     zeta2 = zeta*zeta
     quick = zeta2 >= sq_lo .and. zeta2 <= 1.0_dp
@@ -349,48 +349,72 @@ contains
       end do
       if (nb == 0) cycle
       p0 = base + n - nb
-      ! (1) gather the row's footprint cells into contiguous columns of w: u, |r_C|,
-      ! the areodetic and the topographic normal
+      ! (1) the row's footprint cells: when they are consecutive cells of the table
+      ! (the usual case) their u, |r_C| and normals are read in place, else gathered
+      ! into the same layout (cu, cr, cn, cs)
       do b = 1, nb
-        k = buf(b)
         idx(p0 + b, 1) = s - 1
-        idx(p0 + b, 2) = k - 1
-        w(b, 1) = u(1, k)
-        w(b, 2) = u(2, k)
-        w(b, 3) = u(3, k)
-        w(b, 4) = rc(k)
-        w(b, 5) = ndet(1, k)
-        w(b, 6) = ndet(2, k)
-        w(b, 7) = ndet(3, k)
-        w(b, 8) = snorm(1, k)
-        w(b, 9) = snorm(2, k)
-        w(b, 10) = snorm(3, k)
+        idx(p0 + b, 2) = buf(b) - 1
       end do
-      ! (2) d, |d|, the solid angle, the frame coordinates, d_hat (w 11-13) and the
-      ! position angle's 2-vector (w 14-17)
-      call pair_vectors(nb, r, frame, east, north, area, w(:, 1), w(:, 2), w(:, 3), w(:, 4), &
-                        d(:, p0 + 1:p0 + nb), scal(p0 + 1:p0 + nb, 1), scal(p0 + 1:p0 + nb, 2), &
-                        gsh(:, p0 + 1:p0 + nb), w(:, 11), w(:, 12), w(:, 13), w(:, 14), w(:, 15), w(:, 16), w(:, 17))
-      ! (3) the angles [note 15], each a branch-free loop over the row
-      call angles_fixed(nb, w(:, 11), w(:, 12), w(:, 13), rhat, ang(:, 4))   ! notes: cos psi = d_hat . R_hat
-      if (gamma_fast) then
-        ! zenith angle = psi + gamma, gamma the cell's central angle from the sub-spacecraft
-        ! point (the exterior angle of the triangle centre-cell-spacecraft), with
-        ! sin gamma = rho / cos(beta) < 1/2 from the position angle's 2-vector [note 16]
-        call zenith_sum(nb, ang(:, 4), w(:, 17), 1.0_dp / pole, ang(:, 1))
+      k = buf(1)
+      if (buf(nb) - k == nb - 1) then
+        call row_pairs(nb, r, frame, east, north, area, rhat, pole, gamma_fast, track, ascale, &
+                       u(:, k:k + nb - 1), rc(k:k + nb - 1), ndet(:, k:k + nb - 1), snorm(:, k:k + nb - 1), ncol, w, &
+                       d(:, p0 + 1:p0 + nb), gsh(:, p0 + 1:p0 + nb), scal(p0 + 1:p0 + nb, 1), &
+                       scal(p0 + 1:p0 + nb, 2), scal(p0 + 1:p0 + nb, 3), scal(p0 + 1:p0 + nb, 4), &
+                       scal(p0 + 1:p0 + nb, 5), scal(p0 + 1:p0 + nb, 6), scal(p0 + 1:p0 + nb, 7), &
+                       scal(p0 + 1:p0 + nb, 8), scal(p0 + 1:p0 + nb, 9))
       else
-        call angles_soa(nb, w(:, 11), w(:, 12), w(:, 13), w(:, 1), w(:, 2), w(:, 3), ang(:, 1))  ! notes: cos z = r_C . d / (|r_C| |d|)
+        do b = 1, nb
+          k = buf(b)
+          cu(:, b) = u(:, k)
+          cr(b) = rc(k)
+          cn(:, b) = ndet(:, k)
+          cs(:, b) = snorm(:, k)
+        end do
+        call row_pairs(nb, r, frame, east, north, area, rhat, pole, gamma_fast, track, ascale, cu, cr, cn, cs, ncol, w, &
+                       d(:, p0 + 1:p0 + nb), gsh(:, p0 + 1:p0 + nb), scal(p0 + 1:p0 + nb, 1), &
+                       scal(p0 + 1:p0 + nb, 2), scal(p0 + 1:p0 + nb, 3), scal(p0 + 1:p0 + nb, 4), &
+                       scal(p0 + 1:p0 + nb, 5), scal(p0 + 1:p0 + nb, 6), scal(p0 + 1:p0 + nb, 7), &
+                       scal(p0 + 1:p0 + nb, 8), scal(p0 + 1:p0 + nb, 9))
       end if
-      call angles_soa(nb, w(:, 11), w(:, 12), w(:, 13), w(:, 5), w(:, 6), w(:, 7), ang(:, 2))    ! areodetic normal (note 2)
-      call angles_soa(nb, w(:, 11), w(:, 12), w(:, 13), w(:, 8), w(:, 9), w(:, 10), ang(:, 3))   ! notes: cos e = s_C . d_hat
-      call angles_north(nb, w(:, 14), w(:, 15), ang(:, 5))                    ! position angle (note 5)
-      ! (4) the angles written out
-      call store_angles(nb, ang(:, 1), ang(:, 2), ang(:, 3), ang(:, 4), ang(:, 5), w(:, 16), w(:, 17), &
-                        pole > 1.0e-12_dp, track, ascale, gsh(:, p0 + 1:p0 + nb), scal(p0 + 1:p0 + nb, 3), &
-                        scal(p0 + 1:p0 + nb, 4), scal(p0 + 1:p0 + nb, 5), scal(p0 + 1:p0 + nb, 6), &
-                        scal(p0 + 1:p0 + nb, 7), scal(p0 + 1:p0 + nb, 8), scal(p0 + 1:p0 + nb, 9))
     end do
   end subroutine scan_spectrum
+
+  !> The geometry of one row's nb footprint pairs (scan_spectrum), in loops over the
+  !> pairs that gfortran vectorises: cells uc, ndc, snc (3, nb) the unit centre
+  !> direction, areodetic and topographic normal, rcc(nb) the centre radius; w(ldw, 12)
+  !> scratch (ldw >= nb); outputs d = R - r_C and g = r_C - R in the spacecraft
+  !> frame (3, nb), and the pairs' nine scal columns s1..s9 (footprint_fill).
+  subroutine row_pairs(nb, r, frame, east, north, area, rhat, pole, gamma_fast, track, ascale, uc, rcc, ndc, snc, &
+                       ldw, w, d, g, s1, s2, s3, s4, s5, s6, s7, s8, s9)
+    integer, intent(in) :: nb, ldw
+    real(dp), intent(in) :: r(3), frame(3, 3), east(3), north(3), area, rhat(3), pole, track, ascale
+    logical, intent(in) :: gamma_fast
+    real(dp), intent(in) :: uc(3, nb), rcc(nb), ndc(3, nb), snc(3, nb)
+    real(dp), intent(inout) :: w(ldw, 12), d(3, nb), g(3, nb), s1(nb), s2(nb), s3(nb), s4(nb), s5(nb), s6(nb), &
+                               s7(nb), s8(nb), s9(nb)
+    ! d, |d|, the solid angle, the frame coordinates, d_hat (w 1-3) and the position
+    ! angle's 2-vector (w 4-7)
+    call pair_vectors(nb, r, frame, east, north, area, uc, rcc, d, s1, s2, g, w(:, 1), w(:, 2), w(:, 3), &
+                      w(:, 4), w(:, 5), w(:, 6), w(:, 7))
+    ! the angles [note 15], each a branch-free loop over the row (w 8-12)
+    call angles_fixed(nb, w(:, 1), w(:, 2), w(:, 3), rhat, w(:, 11))      ! notes: cos psi = d_hat . R_hat
+    if (gamma_fast) then
+      ! zenith angle = psi + gamma, gamma the cell's central angle from the sub-spacecraft
+      ! point (the exterior angle of the triangle centre-cell-spacecraft), with
+      ! sin gamma = rho / cos(beta) < 1/2 from the position angle's 2-vector [note 16]
+      call zenith_sum(nb, w(:, 11), w(:, 7), 1.0_dp / pole, w(:, 8))
+    else
+      call angles_aos(nb, w(:, 1), w(:, 2), w(:, 3), uc, w(:, 8))         ! notes: cos z = r_C . d / (|r_C| |d|)
+    end if
+    call angles_aos(nb, w(:, 1), w(:, 2), w(:, 3), ndc, w(:, 9))          ! areodetic normal (note 2)
+    call angles_aos(nb, w(:, 1), w(:, 2), w(:, 3), snc, w(:, 10))         ! notes: cos e = s_C . d_hat
+    call angles_north(nb, w(:, 4), w(:, 5), w(:, 12))                    ! position angle (note 5)
+    ! the angles written out
+    call store_angles(nb, w(:, 8), w(:, 9), w(:, 10), w(:, 11), w(:, 12), w(:, 6), w(:, 7), &
+                      pole > 1.0e-12_dp, track, ascale, g, s3, s4, s5, s6, s7, s8, s9)
+  end subroutine row_pairs
 
   !> The cone test cos psi >= zeta, i.e. .not. (a < zeta*sqrt(dist2)) with a = d . R_hat
   !> and dist2 = |d|^2, decided without the square root when a^2 and zeta^2 dist2 are
@@ -427,18 +451,18 @@ contains
   !> position angle's unit 2-vector (px, py) (east, north components of u at the
   !> sub-spacecraft point) with its unnormalised east component x and length rho
   !> (rho = 0: the cell at the sub-spacecraft point; px = x = 0, py = 0).
-  subroutine pair_vectors(nb, r, frame, east, north, area, ux, uy, uz, rk, dd, dist, omega, g, hx, hy, hz, &
+  subroutine pair_vectors(nb, r, frame, east, north, area, uc, rk, dd, dist, omega, g, hx, hy, hz, &
                           px, py, x, rho)
     integer, intent(in) :: nb
-    real(dp), intent(in) :: r(3), frame(3, 3), east(3), north(3), area, ux(nb), uy(nb), uz(nb), rk(nb)
+    real(dp), intent(in) :: r(3), frame(3, 3), east(3), north(3), area, uc(3, nb), rk(nb)
     real(dp), intent(inout) :: dd(3, nb), dist(nb), omega(nb), g(3, nb)
     real(dp), intent(inout) :: hx(nb), hy(nb), hz(nb), px(nb), py(nb), x(nb), rho(nb)
     real(dp) :: dx, dy, dz, dist2, dst, inv, xe, yn, rr
     integer :: b
     do b = 1, nb
-      dx = r(1) - rk(b)*ux(b)                              ! notes: d = R_S/C - r_C
-      dy = r(2) - rk(b)*uy(b)
-      dz = r(3) - rk(b)*uz(b)
+      dx = r(1) - rk(b)*uc(1, b)                              ! notes: d = R_S/C - r_C
+      dy = r(2) - rk(b)*uc(2, b)
+      dz = r(3) - rk(b)*uc(3, b)
       dist2 = dx*dx + dy*dy + dz*dz
       dst = sqrt(dist2)
       inv = 1.0_dp / dst
@@ -455,8 +479,8 @@ contains
       hy(b) = dy*inv
       hz(b) = dz*inv
       ! the cell's direction (east, north) at the sub-spacecraft point (note 5)
-      xe = ux(b)*east(1) + uy(b)*east(2)
-      yn = ux(b)*north(1) + uy(b)*north(2) + uz(b)*north(3)
+      xe = uc(1, b)*east(1) + uc(2, b)*east(2)
+      yn = uc(1, b)*north(1) + uc(2, b)*north(2) + uc(3, b)*north(3)
       rr = sqrt(xe*xe + yn*yn)
       inv = 1.0_dp / max(rr, tiny(rr))
       px(b) = xe*inv
@@ -513,17 +537,17 @@ contains
     end if
   end subroutine store_angles
 
-  !> Angles (radians) between the unit vectors (hx, hy, hz)(b) and (vx, vy, vz)(b), b = 1..nb.
-  subroutine angles_soa(nb, hx, hy, hz, vx, vy, vz, ang)
+  !> Angles (radians) between the unit vectors (hx, hy, hz)(b) and v(:, b), b = 1..nb.
+  subroutine angles_aos(nb, hx, hy, hz, v, ang)
     integer, intent(in) :: nb
-    real(dp), intent(in) :: hx(nb), hy(nb), hz(nb), vx(nb), vy(nb), vz(nb)
+    real(dp), intent(in) :: hx(nb), hy(nb), hz(nb), v(3, nb)
     real(dp), intent(inout) :: ang(nb)
     integer :: b
     do b = 1, nb
-      ang(b) = chord_angle((hx(b) - vx(b))**2 + (hy(b) - vy(b))**2 + (hz(b) - vz(b))**2, &
-                           (hx(b) + vx(b))**2 + (hy(b) + vy(b))**2 + (hz(b) + vz(b))**2)
+      ang(b) = chord_angle((hx(b) - v(1, b))**2 + (hy(b) - v(2, b))**2 + (hz(b) - v(3, b))**2, &
+                           (hx(b) + v(1, b))**2 + (hy(b) + v(2, b))**2 + (hz(b) + v(3, b))**2)
     end do
-  end subroutine angles_soa
+  end subroutine angles_aos
 
   !> Zenith angles z = psi + gamma (radians), b = 1..nb, from the nadir angles psi and
   !> the central angles gamma = asin(rho*icb) of the cells from the sub-spacecraft
