@@ -943,7 +943,11 @@ def _run_kernel(cells: CellTable, R: np.ndarray, frames: np.ndarray, zeta: np.nd
         np.cumsum(counts[:-1], out=offsets[1:])
     m = int(counts.sum())
     if buffers is None or buffers.capacity < m:
-        buffers = _PairBuffers(m)
+        # reused memory that is too small grows by half at least, so that a sequence of
+        # calls with slowly growing footprints (one spectrum per call along an orbit)
+        # does not take fresh memory, and its page faults, on almost every call
+        grow = 0 if buffers is None else buffers.capacity + buffers.capacity // 2
+        buffers = _PairBuffers(max(m, grow))
     idx, d, gsh, scal = buffers.views(m)
     if m == 0:                      # nothing to fill (f2py refuses zero-size in-place arrays)
         return idx, d, gsh, scal, buffers
