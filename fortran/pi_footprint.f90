@@ -196,12 +196,12 @@ contains
   !> and, when `fill`, write their geometry from pair index base + 1 on (at
   !> most `room` pairs). n returns the number of footprint cells.
   !>
-  !> Per footprint row the work is split into loops over the row's cells
-  !> (docs/grs-notes.md, speed): the candidate test (no square root outside a
-  !> narrow band around the cone's edge), a gather loop (d, |d|, one 1/|d| shared
-  !> by every angle, the frame coordinates, the position angle's 2-vector), one
-  !> loop per angle that computes it from the squared chords without branches
-  !> (gfortran vectorises it with SSE2), and the stores.
+  !> Per row (docs/grs-notes.md, speed): the candidates within the row's
+  !> longitude interval of certain cells are taken untested, the others tested
+  !> (no square root outside a narrow band around the cone's edge, in_cone);
+  !> the row's footprint pairs then go to row_pairs, whose loops over the pairs
+  !> gfortran vectorises (one 1/|d| shared by every angle, each angle from its
+  !> squared chords without branches).
   subroutine scan_spectrum(fill, s, r, frame, zeta, nrow, ncol, cd, nc, u, rc, ndet, snorm, rmin, rtop, area, &
                            ascale, base, room, idx, d, gsh, scal, n, status)
     logical, intent(in) :: fill
