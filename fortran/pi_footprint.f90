@@ -65,6 +65,15 @@ module pi_footprint
   !> longitude half-width, far above the rounding of the bounds.
   real(dp), parameter :: margin = 1.0e-7_dp
 
+  !> Relative tightening of both thresholds (the horizon's rtop/|R| and the cone's
+  !> zeta) for the cells taken without a test (scan_spectrum).
+  real(dp), parameter :: in_slack = 1.0e-9_dp
+
+  !> The square-root-free cone test (in_cone): a^2 and zeta^2 |d|^2 are compared
+  !> only between sq_lo and sq_hi (normal numbers, products of normal numbers
+  !> without overflow) and decided only when they differ by more than sq_band.
+  real(dp), parameter :: sq_lo = 1.0e-280_dp, sq_hi = 1.0e280_dp, sq_band = 1.0e-12_dp
+
 contains
 
   !> Number of footprint cells of each spectrum (the first of the two passes).
@@ -186,6 +195,13 @@ contains
   !> Visit the candidate cells of one spectrum; count those in the footprint
   !> and, when `fill`, write their geometry from pair index base + 1 on (at
   !> most `room` pairs). n returns the number of footprint cells.
+  !>
+  !> Per row (docs/grs-notes.md, speed): the candidates within the row's
+  !> longitude interval of certain cells are taken untested, the others tested
+  !> (no square root outside a narrow band around the cone's edge, in_cone);
+  !> the row's footprint pairs then go to row_pairs, whose loops over the pairs
+  !> gfortran vectorises (one 1/|d| shared by every angle, each angle from its
+  !> squared chords without branches).
   subroutine scan_spectrum(fill, s, r, frame, zeta, nrow, ncol, cd, nc, u, rc, ndet, snorm, rmin, rtop, area, &
                            ascale, base, room, idx, d, gsh, scal, n, status)
     logical, intent(in) :: fill
@@ -197,14 +213,13 @@ contains
     real(dp), intent(inout) :: d(:, :), gsh(:, :), scal(:, :)
     integer(i8), intent(out) :: n
     integer, intent(out) :: status
-    real(dp) :: rn, rhat(3), beta, lam, theta, psim, q, cmax, sb, cb, phi, sp, cp, rhs, dlam
-    real(dp) :: east(3), north(3), dv(3), dist2, dist, dh(3), uk(3), x, y, nan, pole, track, rho, pa
-    real(dp), allocatable :: hm(:, :), hp(:, :), ang(:, :), px(:)
+    real(dp) :: rn, rhat(3), beta, lam, theta, psim, q, cmax, sb, cb, phi, sp, cp, rhs, dlam, gin, cin
+    real(dp) :: east(3), north(3), dv(3), dist2, uk(3), pole, track, zeta2, a
+    real(dp), allocatable :: w(:, :), cu(:, :), cr(:), cn(:, :), cs(:, :)
     integer, allocatable :: buf(:)
-    integer :: ilo, ihi, i, jlo, jhi, jj, j, k, nb, b, c5
-    real(dp) :: t, z, q2, rr, aa
-    logical :: low
-    integer(i8) :: p, p0
+    integer :: ilo, ihi, i, jlo, jhi, jj, j, k, nb, b, jlc, jhc
+    logical :: quick, gamma_fast
+    integer(i8) :: p0
     n = 0
     status = fp_ok
     if (.not. all(abs(r) < huge(r))) then
@@ -221,8 +236,10 @@ contains
       return
     end if
     rhat = r / rn
-    nan = ieee_value(nan, ieee_quiet_nan)
-    if (fill) allocate(buf(ncol), hm(ncol, 5), hp(ncol, 5), ang(ncol, 5), px(ncol))
+    if (fill) allocate(buf(ncol), w(ncol, 12), cu(3, ncol), cr(ncol), cn(3, ncol), cs(3, ncol))
+    ! the cone test without its square root (in_cone) only where zeta^2 is a normal number
+    zeta2 = zeta*zeta
+    quick = zeta2 >= sq_lo .and. zeta2 <= 1.0_dp
     ! largest central angle of a selected cell (module header): horizon, then the cone
     theta = acos(rmin / rn)
     if (zeta > 0.0_dp) then
@@ -232,6 +249,23 @@ contains
     end if
     theta = max(theta, 0.0_dp) + margin
     cmax = cos(min(theta, pi))
+    ! central angle within which every cell passes both tests with room to spare
+    ! (the same bounds from the highest cell radius, rtop, with the thresholds
+    ! tightened by a relative 1e-9, far above the tests' rounding): those cells are
+    ! taken without evaluating the tests, only the band between the two angles is
+    ! tested. The candidate set is unchanged, and so is the result.
+    gin = acos(min(1.0_dp, (rtop / rn) * (1.0_dp + in_slack)))
+    if (zeta > 0.0_dp) then
+      if (zeta + in_slack < 1.0_dp) then
+        psim = acos(zeta + in_slack)
+        q = rn * sin(psim) / rtop
+        if (q < 1.0_dp) gin = min(gin, asin(q) - psim)
+      else
+        gin = 0.0_dp
+      end if
+    end if
+    gin = gin - margin
+    cin = cos(gin)
     beta = atan2(rhat(3), hypot(rhat(1), rhat(2)))
     lam = atan2(rhat(2), rhat(1))
     sb = sin(beta)
@@ -241,6 +275,9 @@ contains
     east = [-rhat(2), rhat(1), 0.0_dp]
     north = [-rhat(3)*rhat(1), -rhat(3)*rhat(2), 1.0_dp - rhat(3)*rhat(3)]
     pole = hypot(rhat(1), rhat(2))
+    ! every selected cell lies within theta of the sub-spacecraft point (module
+    ! header): below 30 deg and away from the poles the zenith angle is psi + gamma [note 16]
+    gamma_fast = theta < pi/6 - 1.0e-6_dp .and. pole > 1.0e-3_dp
     ! bearing of the frame's +y axis (the ground track, clockwise from north), for the azimuth
     if (fill .and. pole > 1.0e-12_dp) then
       track = atan2(dot_product(frame(:, 2), east), dot_product(frame(:, 2), north))
@@ -272,6 +309,22 @@ contains
           end if
         end if
       end if
+      ! the columns jj = jlc..jhc (a part of jlo..jhi) that need no test
+      jlc = 1
+      jhc = 0
+      if (gin > 1.0e-6_dp .and. cp * cb > 1.0e-12_dp) then
+        rhs = (cin - sp*sb) / (cp*cb)
+        if (rhs <= -1.0_dp) then
+          jlc = jlo
+          jhc = jhi
+        else if (rhs < 1.0_dp) then
+          dlam = acos(rhs) - margin
+          if (dlam > 0.0_dp) then
+            jlc = max(jlo, ceiling((lam - dlam) / cd - 0.5_dp))
+            jhc = min(jhi, floor((lam + dlam) / cd - 0.5_dp))
+          end if
+        end if
+      end if
       nb = 0
       ! column j = modulo(jj, ncol), stepped rather than divided per cell (an integer
       ! division per candidate cell cost more than the test itself); the range
@@ -281,116 +334,294 @@ contains
         j = j + 1
         if (j == ncol) j = 0
         k = i*ncol + j + 1
-        uk = u(:, k)
-        dv = r - rc(k)*uk                                   ! notes: d = R_S/C - r_C
-        if (.not. dot_product(dv, uk) > 0.0_dp) cycle       ! below the horizon (note 7)
-        dist2 = dot_product(dv, dv)
-        dist = sqrt(dist2)
-        if (dot_product(dv, rhat) < zeta * dist) cycle      ! cos psi >= zeta (note 6)
+        if (jj < jlc .or. jj > jhc) then
+          uk = u(:, k)
+          dv = r - rc(k)*uk                                 ! notes: d = R_S/C - r_C
+          if (.not. dv(1)*uk(1) + dv(2)*uk(2) + dv(3)*uk(3) > 0.0_dp) cycle   ! below the horizon (note 7)
+          dist2 = dv(1)*dv(1) + dv(2)*dv(2) + dv(3)*dv(3)
+          a = dv(1)*rhat(1) + dv(2)*rhat(2) + dv(3)*rhat(3)
+          if (.not. in_cone(a, dist2, zeta, zeta2, quick)) cycle  ! cos psi >= zeta (note 6)
+        end if
         n = n + 1
         if (.not. fill .or. n > room) cycle
         nb = nb + 1
         buf(nb) = k
       end do
       if (nb == 0) cycle
-      ! the row's footprint cells in three passes that the compiler can vectorise:
-      ! (1) vectors and the squared chords |a -+ b|^2 of every angle, (2) the
-      ! angles from the chords, (3) the angles written out
       p0 = base + n - nb
+      ! (1) the row's footprint cells: when they are consecutive cells of the table
+      ! (the usual case) their u, |r_C| and normals are read in place, else gathered
+      ! into the same layout (cu, cr, cn, cs)
       do b = 1, nb
-        k = buf(b)
-        p = p0 + b
-        dv = r - rc(k)*u(:, k)
-        dist2 = dv(1)*dv(1) + dv(2)*dv(2) + dv(3)*dv(3)
-        dist = sqrt(dist2)
-        dh = dv / dist
-        idx(p, 1) = s - 1
-        idx(p, 2) = k - 1
-        d(:, p) = dv
-        scal(p, 1) = dist
-        scal(p, 2) = area / dist2                           ! notes: Omega = A / |d|^2
-        call chords(dh, u(:, k), hm(b, 1), hp(b, 1))       ! notes: cos z = r_C . d / (|r_C| |d|)
-        call chords(dh, ndet(:, k), hm(b, 2), hp(b, 2))     ! areodetic normal (note 2)
-        call chords(dh, snorm(:, k), hm(b, 3), hp(b, 3))    ! notes: cos e = s_C . d_hat
-        call chords(dh, rhat, hm(b, 4), hp(b, 4))           ! notes: cos psi = d_hat . R_hat
-        ! position angle: the cell's direction (east, north) at the sub-spacecraft
-        ! point as a unit 2-vector (c, s) = (north, east); its angle from north (note 5)
-        x = u(1, k)*east(1) + u(2, k)*east(2)
-        y = u(1, k)*north(1) + u(2, k)*north(2) + u(3, k)*north(3)
-        px(b) = x
-        rho = sqrt(x*x + y*y)
-        if (rho > 0.0_dp) then
-          hm(b, 5) = (y/rho - 1.0_dp)**2 + (x/rho)**2
-          hp(b, 5) = (y/rho + 1.0_dp)**2 + (x/rho)**2
-        else
-          hm(b, 5) = 0.0_dp
-          hp(b, 5) = 4.0_dp
-          px(b) = nan                                       ! the cell at the sub-spacecraft point
-        end if
-        gsh(1, p) = -dot_product(frame(:, 1), dv)           ! r_C - R in the spacecraft frame (note 9)
-        gsh(2, p) = -dot_product(frame(:, 2), dv)
-        gsh(3, p) = -dot_product(frame(:, 3), dv)
+        idx(p0 + b, 1) = s - 1
+        idx(p0 + b, 2) = buf(b) - 1
       end do
-      ! [note 15] angle (0..pi) between unit vectors from their squared chords hm = |a - b|^2,
-      ! hp = |a + b|^2: 2 asin(sqrt(hm)/2) up to 90 deg, pi - 2 asin(sqrt(hp)/2)
-      ! beyond, so that asin's argument t stays below 0.7072; asin t from fdlibm's
-      ! kernel, for t >= 1/2 as pi/2 - 2 asin(sqrt((1 - t)/2)). Accurate near 0 and
-      ! pi where acos(a . b) is not; within 2 ulp of libm (tested). Inline
-      ! arithmetic instead of libm's asin and atan2, which took half of the
-      ! kernel's time. The merges do not make the loop vectorise: without
-      ! fast-math (-ftrapping-math) gfortran 12 may not speculate the sqrt and
-      ! compiles them to branches ("control flow in loop"); a branch-free variant
-      ! (both arms computed, 0/1-weight blends, bit-identical) does vectorise but
-      ! was not measurably faster with 2-wide SSE2 (docs/grs-notes.md, speed).
-      do c5 = 1, 5
+      k = buf(1)
+      if (buf(nb) - k == nb - 1) then
+        call row_pairs(nb, r, frame, east, north, area, rhat, pole, gamma_fast, track, ascale, &
+                       u(:, k:k + nb - 1), rc(k:k + nb - 1), ndet(:, k:k + nb - 1), snorm(:, k:k + nb - 1), ncol, w, &
+                       d(:, p0 + 1:p0 + nb), gsh(:, p0 + 1:p0 + nb), scal(p0 + 1:p0 + nb, 1), &
+                       scal(p0 + 1:p0 + nb, 2), scal(p0 + 1:p0 + nb, 3), scal(p0 + 1:p0 + nb, 4), &
+                       scal(p0 + 1:p0 + nb, 5), scal(p0 + 1:p0 + nb, 6), scal(p0 + 1:p0 + nb, 7), &
+                       scal(p0 + 1:p0 + nb, 8), scal(p0 + 1:p0 + nb, 9))
+      else
         do b = 1, nb
-          t = 0.5_dp * sqrt(min(hm(b, c5), hp(b, c5)))
-          low = t < 0.5_dp
-          z = merge(t, sqrt(0.5_dp*(1.0_dp - t)), low)
-          q2 = z*z
-          rr = z + z*(q2*(ps0 + q2*(ps1 + q2*(ps2 + q2*(ps3 + q2*(ps4 + q2*ps5)))))) / &
-               (1.0_dp + q2*(qs1 + q2*(qs2 + q2*(qs3 + q2*qs4))))
-          aa = merge(rr, (pio2_hi - 2.0_dp*rr) + pio2_lo, low)
-          ang(b, c5) = merge(2.0_dp*aa, pi - 2.0_dp*aa, hm(b, c5) <= hp(b, c5))
+          k = buf(b)
+          cu(:, b) = u(:, k)
+          cr(b) = rc(k)
+          cn(:, b) = ndet(:, k)
+          cs(:, b) = snorm(:, k)
         end do
-      end do
-      do b = 1, nb
-        p = p0 + b
-        scal(p, 3) = ang(b, 1) * ascale
-        scal(p, 4) = ang(b, 2) * ascale
-        scal(p, 5) = ang(b, 3) * ascale
-        scal(p, 6) = ang(b, 4) * ascale
-        if (pole > 1.0e-12_dp .and. px(b) == px(b)) then
-          pa = wrap_2pi(sign(ang(b, 5), px(b)))             ! clockwise from north through east (note 5)
-          scal(p, 7) = pa * ascale
-          ! azimuth from +y (forward) toward +z (left): the horizontal part of r_C - R
-          ! is that of r_C, whose bearing is the position angle, so az = (bearing
-          ! of the track) - PA (the notes' alpha: track = pi/2 - alpha)
-          scal(p, 8) = wrap_2pi(track - pa) * ascale
-        else
-          scal(p, 7) = nan                                  ! over a pole north is undefined
-          scal(p, 8) = wrap_2pi(atan2(gsh(3, p), gsh(2, p))) * ascale
-        end if
-        ! elevation: the frame's x axis is R_hat, so el = asin(-d_hat . R_hat) = psi - pi/2
-        scal(p, 9) = (ang(b, 4) - pi/2) * ascale
-      end do
+        call row_pairs(nb, r, frame, east, north, area, rhat, pole, gamma_fast, track, ascale, cu, cr, cn, cs, ncol, w, &
+                       d(:, p0 + 1:p0 + nb), gsh(:, p0 + 1:p0 + nb), scal(p0 + 1:p0 + nb, 1), &
+                       scal(p0 + 1:p0 + nb, 2), scal(p0 + 1:p0 + nb, 3), scal(p0 + 1:p0 + nb, 4), &
+                       scal(p0 + 1:p0 + nb, 5), scal(p0 + 1:p0 + nb, 6), scal(p0 + 1:p0 + nb, 7), &
+                       scal(p0 + 1:p0 + nb, 8), scal(p0 + 1:p0 + nb, 9))
+      end if
     end do
   end subroutine scan_spectrum
 
-  !> Squared chords |a - b|^2 and |a + b|^2 of two unit vectors (the angle's input in scan_spectrum).
-  pure subroutine chords(a, b, hm, hp)
-    real(dp), intent(in) :: a(3), b(3)
-    real(dp), intent(out) :: hm, hp
-    hm = (a(1) - b(1))**2 + (a(2) - b(2))**2 + (a(3) - b(3))**2
-    hp = (a(1) + b(1))**2 + (a(2) + b(2))**2 + (a(3) + b(3))**2
-  end subroutine chords
+  !> The geometry of one row's nb footprint pairs (scan_spectrum), in loops over the
+  !> pairs that gfortran vectorises: cells uc, ndc, snc (3, nb) the unit centre
+  !> direction, areodetic and topographic normal, rcc(nb) the centre radius; w(ldw, 12)
+  !> scratch (ldw >= nb); outputs d = R - r_C and g = r_C - R in the spacecraft
+  !> frame (3, nb), and the pairs' nine scal columns s1..s9 (footprint_fill).
+  subroutine row_pairs(nb, r, frame, east, north, area, rhat, pole, gamma_fast, track, ascale, uc, rcc, ndc, snc, &
+                       ldw, w, d, g, s1, s2, s3, s4, s5, s6, s7, s8, s9)
+    integer, intent(in) :: nb, ldw
+    real(dp), intent(in) :: r(3), frame(3, 3), east(3), north(3), area, rhat(3), pole, track, ascale
+    logical, intent(in) :: gamma_fast
+    real(dp), intent(in) :: uc(3, nb), rcc(nb), ndc(3, nb), snc(3, nb)
+    real(dp), intent(inout) :: w(ldw, 12), d(3, nb), g(3, nb), s1(nb), s2(nb), s3(nb), s4(nb), s5(nb), s6(nb), &
+                               s7(nb), s8(nb), s9(nb)
+    ! d, |d|, the solid angle, the frame coordinates, d_hat (w 1-3) and the position
+    ! angle's 2-vector (w 4-7)
+    call pair_vectors(nb, r, frame, east, north, area, uc, rcc, d, s1, s2, g, w(:, 1), w(:, 2), w(:, 3), &
+                      w(:, 4), w(:, 5), w(:, 6), w(:, 7))
+    ! the angles [note 15], each a branch-free loop over the row (w 8-12)
+    call angles_fixed(nb, w(:, 1), w(:, 2), w(:, 3), rhat, w(:, 11))      ! notes: cos psi = d_hat . R_hat
+    if (gamma_fast) then
+      ! zenith angle = psi + gamma, gamma the cell's central angle from the sub-spacecraft
+      ! point (the exterior angle of the triangle centre-cell-spacecraft), with
+      ! sin gamma = rho / cos(beta) < 1/2 from the position angle's 2-vector [note 16]
+      call zenith_sum(nb, w(:, 11), w(:, 7), 1.0_dp / pole, w(:, 8))
+    else
+      call angles_aos(nb, w(:, 1), w(:, 2), w(:, 3), uc, w(:, 8))         ! notes: cos z = r_C . d / (|r_C| |d|)
+    end if
+    call angles_aos(nb, w(:, 1), w(:, 2), w(:, 3), ndc, w(:, 9))          ! areodetic normal (note 2)
+    call angles_aos(nb, w(:, 1), w(:, 2), w(:, 3), snc, w(:, 10))         ! notes: cos e = s_C . d_hat
+    call angles_north(nb, w(:, 4), w(:, 5), w(:, 12))                    ! position angle (note 5)
+    ! the angles written out
+    call store_angles(nb, w(:, 8), w(:, 9), w(:, 10), w(:, 11), w(:, 12), w(:, 6), w(:, 7), &
+                      pole > 1.0e-12_dp, track, ascale, g, s3, s4, s5, s6, s7, s8, s9)
+  end subroutine row_pairs
 
-  !> An angle mapped to [0, 2 pi).
-  pure real(dp) function wrap_2pi(a) result(w)
+  !> The cone test cos psi >= zeta, i.e. .not. (a < zeta*sqrt(dist2)) with a = d . R_hat
+  !> and dist2 = |d|^2, decided without the square root when a^2 and zeta^2 dist2 are
+  !> normal numbers differing by more than a relative 1e-12 (their rounding is a few
+  !> 1e-16), else by that exact expression: the same cells as the expression alone.
+  pure logical function in_cone(a, dist2, zeta, zeta2, quick) result(inside)
+    real(dp), intent(in) :: a, dist2, zeta, zeta2
+    logical, intent(in) :: quick
+    real(dp) :: a2, z2
+    if (zeta <= 0.0_dp) then
+      if (a >= 0.0_dp) then                                 ! a >= 0 >= zeta |d|
+        inside = .true.
+        return
+      end if
+    else if (quick .and. a > 0.0_dp) then
+      a2 = a*a
+      z2 = zeta2*dist2
+      if (a2 >= sq_lo .and. a2 <= sq_hi .and. z2 >= sq_lo .and. z2 <= sq_hi) then
+        if (a2 > z2*(1.0_dp + sq_band)) then
+          inside = .true.
+          return
+        else if (a2 < z2*(1.0_dp - sq_band)) then
+          inside = .false.
+          return
+        end if
+      end if
+    end if
+    inside = .not. (a < zeta * sqrt(dist2))
+  end function in_cone
+
+  !> Per pair of one row (b = 1..nb; cells u(b) |r_C|(b), spacecraft r): dd = R - r_C,
+  !> dist = |d|, omega = area/|d|^2, g = r_C - R in the spacecraft frame, the unit
+  !> vector d_hat = (hx, hy, hz) (one division shared by every angle) and the
+  !> position angle's unit 2-vector (px, py) (east, north components of u at the
+  !> sub-spacecraft point) with its unnormalised east component x and length rho
+  !> (rho = 0: the cell at the sub-spacecraft point; px = x = 0, py = 0).
+  subroutine pair_vectors(nb, r, frame, east, north, area, uc, rk, dd, dist, omega, g, hx, hy, hz, &
+                          px, py, x, rho)
+    integer, intent(in) :: nb
+    real(dp), intent(in) :: r(3), frame(3, 3), east(3), north(3), area, uc(3, nb), rk(nb)
+    real(dp), intent(inout) :: dd(3, nb), dist(nb), omega(nb), g(3, nb)
+    real(dp), intent(inout) :: hx(nb), hy(nb), hz(nb), px(nb), py(nb), x(nb), rho(nb)
+    real(dp) :: dx, dy, dz, dist2, dst, inv, xe, yn, rr
+    integer :: b
+    do b = 1, nb
+      dx = r(1) - rk(b)*uc(1, b)                              ! notes: d = R_S/C - r_C
+      dy = r(2) - rk(b)*uc(2, b)
+      dz = r(3) - rk(b)*uc(3, b)
+      dist2 = dx*dx + dy*dy + dz*dz
+      dst = sqrt(dist2)
+      inv = 1.0_dp / dst
+      dd(1, b) = dx
+      dd(2, b) = dy
+      dd(3, b) = dz
+      dist(b) = dst
+      omega(b) = area * (inv*inv)                          ! notes: Omega = A / |d|^2
+      ! r_C - R in the spacecraft frame (note 9)
+      g(1, b) = -(frame(1, 1)*dx + frame(2, 1)*dy + frame(3, 1)*dz)
+      g(2, b) = -(frame(1, 2)*dx + frame(2, 2)*dy + frame(3, 2)*dz)
+      g(3, b) = -(frame(1, 3)*dx + frame(2, 3)*dy + frame(3, 3)*dz)
+      hx(b) = dx*inv
+      hy(b) = dy*inv
+      hz(b) = dz*inv
+      ! the cell's direction (east, north) at the sub-spacecraft point (note 5)
+      xe = uc(1, b)*east(1) + uc(2, b)*east(2)
+      yn = uc(1, b)*north(1) + uc(2, b)*north(2) + uc(3, b)*north(3)
+      rr = sqrt(xe*xe + yn*yn)
+      inv = 1.0_dp / max(rr, tiny(rr))
+      px(b) = xe*inv
+      py(b) = yn*inv
+      x(b) = xe
+      rho(b) = rr
+    end do
+  end subroutine pair_vectors
+
+  !> The angle outputs of one row, times ascale: zenith angles (a1, a2), emission
+  !> (a3), nadir angle (a4), position angle from its 0..pi magnitude a5 and the sign
+  !> of the east component x (NaN where rho = 0 or over a pole: `polar` false),
+  !> azimuth (track bearing - PA; over a pole from the frame coordinates g) and
+  !> elevation psi - pi/2. Both [0, 2 pi) wraps without branches.
+  subroutine store_angles(nb, a1, a2, a3, a4, a5, x, rho, polar, track, ascale, g, s3, s4, s5, s6, s7, s8, s9)
+    integer, intent(in) :: nb
+    real(dp), intent(in) :: a1(nb), a2(nb), a3(nb), a4(nb), a5(nb), x(nb), rho(nb), track, ascale, g(3, nb)
+    logical, intent(in) :: polar
+    real(dp), intent(inout) :: s3(nb), s4(nb), s5(nb), s6(nb), s7(nb), s8(nb), s9(nb)
+    real(dp) :: pa, az, nan
+    integer :: b
+    do b = 1, nb
+      s3(b) = a1(b) * ascale
+      s4(b) = a2(b) * ascale
+      s5(b) = a3(b) * ascale
+      s6(b) = a4(b) * ascale
+      ! elevation: the frame's x axis is R_hat, so el = asin(-d_hat . R_hat) = psi - pi/2
+      s9(b) = (a4(b) - pi/2) * ascale
+    end do
+    if (polar) then
+      do b = 1, nb
+        pa = wrap_2pi(sign(a5(b), x(b)))                   ! clockwise from north through east (note 5)
+        s7(b) = pa * ascale
+        ! azimuth from +y (forward) toward +z (left): the horizontal part of r_C - R
+        ! is that of r_C, whose bearing is the position angle, so az = (bearing
+        ! of the track) - PA (the notes' alpha: track = pi/2 - alpha); track - pa
+        ! lies in (-3 pi, pi], hence a second wrap
+        az = wrap_2pi(wrap_2pi(track - pa))
+        s8(b) = az * ascale
+      end do
+      nan = ieee_value(nan, ieee_quiet_nan)
+      do b = 1, nb
+        if (.not. rho(b) > 0.0_dp) then                    ! the cell at the sub-spacecraft point
+          s7(b) = nan
+          s8(b) = wrap_2pi(atan2(g(3, b), g(2, b))) * ascale
+        end if
+      end do
+    else
+      nan = ieee_value(nan, ieee_quiet_nan)
+      do b = 1, nb
+        s7(b) = nan                                        ! over a pole north is undefined
+        s8(b) = wrap_2pi(atan2(g(3, b), g(2, b))) * ascale
+      end do
+    end if
+  end subroutine store_angles
+
+  !> Angles (radians) between the unit vectors (hx, hy, hz)(b) and v(:, b), b = 1..nb.
+  subroutine angles_aos(nb, hx, hy, hz, v, ang)
+    integer, intent(in) :: nb
+    real(dp), intent(in) :: hx(nb), hy(nb), hz(nb), v(3, nb)
+    real(dp), intent(inout) :: ang(nb)
+    integer :: b
+    do b = 1, nb
+      ang(b) = chord_angle((hx(b) - v(1, b))**2 + (hy(b) - v(2, b))**2 + (hz(b) - v(3, b))**2, &
+                           (hx(b) + v(1, b))**2 + (hy(b) + v(2, b))**2 + (hz(b) + v(3, b))**2)
+    end do
+  end subroutine angles_aos
+
+  !> Zenith angles z = psi + gamma (radians), b = 1..nb, from the nadir angles psi and
+  !> the central angles gamma = asin(rho*icb) of the cells from the sub-spacecraft
+  !> point (rho = cos(beta) sin(gamma), icb = 1/cos(beta)); for sin gamma <= 1/2 only
+  !> (the caller's bound), where asin is fdlibm's kernel alone [note 16].
+  subroutine zenith_sum(nb, psi, rho, icb, z)
+    integer, intent(in) :: nb
+    real(dp), intent(in) :: psi(nb), rho(nb), icb
+    real(dp), intent(inout) :: z(nb)
+    real(dp) :: sg, q2
+    integer :: b
+    do b = 1, nb
+      sg = rho(b) * icb
+      q2 = sg*sg
+      z(b) = psi(b) + (sg + sg*(q2*(ps0 + q2*(ps1 + q2*(ps2 + q2*(ps3 + q2*(ps4 + q2*ps5)))))) / &
+                      (1.0_dp + q2*(qs1 + q2*(qs2 + q2*(qs3 + q2*qs4)))))
+    end do
+  end subroutine zenith_sum
+
+  !> Angles (radians) between the unit vectors (hx, hy, hz)(b) and the unit vector v, b = 1..nb.
+  subroutine angles_fixed(nb, hx, hy, hz, v, ang)
+    integer, intent(in) :: nb
+    real(dp), intent(in) :: hx(nb), hy(nb), hz(nb), v(3)
+    real(dp), intent(inout) :: ang(nb)
+    integer :: b
+    do b = 1, nb
+      ang(b) = chord_angle((hx(b) - v(1))**2 + (hy(b) - v(2))**2 + (hz(b) - v(3))**2, &
+                           (hx(b) + v(1))**2 + (hy(b) + v(2))**2 + (hz(b) + v(3))**2)
+    end do
+  end subroutine angles_fixed
+
+  !> Angles (radians, 0..pi) of the unit 2-vectors (px, py)(b) from (0, 1), b = 1..nb.
+  subroutine angles_north(nb, px, py, ang)
+    integer, intent(in) :: nb
+    real(dp), intent(in) :: px(nb), py(nb)
+    real(dp), intent(inout) :: ang(nb)
+    integer :: b
+    do b = 1, nb
+      ang(b) = chord_angle((py(b) - 1.0_dp)**2 + px(b)**2, (py(b) + 1.0_dp)**2 + px(b)**2)
+    end do
+  end subroutine angles_north
+
+  !> [note 15] The angle (0..pi) between two unit vectors from their squared chords
+  !> hm = |a - b|^2 and hp = |a + b|^2, with one square root and one division:
+  !> below 60 deg 2 asin(t), t = sqrt(hm)/2 < 1/2; beyond 120 deg pi - 2 asin(sqrt(hp)/2);
+  !> between them pi/2 - asin(c) with c = a . b = (hp - hm)/4, |c| <= 1/2, where
+  !> the cosine is well conditioned (an error e in c moves the angle by at most
+  !> 1.16 e). asin from fdlibm's rational kernel, inline instead of libm's asin
+  !> and atan2. Accurate near 0 and pi where acos(a . b) is not. The three arms
+  !> are computed and blended with 0/1 weights (no branches), so that the
+  !> calling loops vectorise without fast-math.
+  elemental real(dp) function chord_angle(hm, hp) result(ang)
+    real(dp), intent(in) :: hm, hp
+    real(dp) :: t, c, z, q2, rr, mid, obtuse
+    t = 0.5_dp * sqrt(min(hm, hp))                         ! sin(angle/2) or cos(angle/2)
+    c = 0.25_dp * (hp - hm)                                ! cos(angle)
+    ! 0/1 weights from sign() rather than merge() on a comparison, which gfortran
+    ! (trapping math) compiles to a branch; x*1 + y*0 = x exactly for finite x, y
+    mid = 0.5_dp + sign(0.5_dp, t - 0.5_dp)                ! 1 when t >= 1/2: 60..120 deg
+    obtuse = 0.5_dp + sign(0.5_dp, hm - hp)                ! 1 when hm > hp (hm - hp = +0 when equal)
+    z = (1.0_dp - mid)*t + mid*c
+    q2 = z*z
+    rr = z + z*(q2*(ps0 + q2*(ps1 + q2*(ps2 + q2*(ps3 + q2*(ps4 + q2*ps5)))))) / &
+         (1.0_dp + q2*(qs1 + q2*(qs2 + q2*(qs3 + q2*qs4))))   ! asin z, |z| <= 1/2
+    ang = (1.0_dp - mid)*((1.0_dp - obtuse)*(2.0_dp*rr) + obtuse*(pi - 2.0_dp*rr)) &
+          + mid*((pio2_hi - rr) + pio2_lo)
+  end function chord_angle
+
+  !> An angle in [-2 pi, 2 pi) mapped to [0, 2 pi) (2 pi added to a negative one; a
+  !> result that rounds to 2 pi becomes 0), without branches: 0/1 weights from sign().
+  elemental real(dp) function wrap_2pi(a) result(w)
     real(dp), intent(in) :: a
-    w = a
-    if (w < 0.0_dp) w = w + 2.0_dp*pi
-    if (w >= 2.0_dp*pi) w = 0.0_dp
+    w = a + (2.0_dp*pi)*(0.5_dp - sign(0.5_dp, a))
+    w = w - (2.0_dp*pi)*(0.5_dp + sign(0.5_dp, w - 2.0_dp*pi))
   end function wrap_2pi
 
 end module pi_footprint

@@ -903,6 +903,29 @@ class _PairBuffers:
                 self.gsh[:3 * m].reshape((3, m), order="F"), self.scal[:9 * m].reshape((m, 9), order="F"))
 
 
+def _state_frames(R: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``spacecraft_frame(R, v, method="state")`` for checked (N, 3) R and v: the same
+    arithmetic (bit for bit) and the same error for a radial velocity, without
+    :func:`frame_angles`' angles, which footprint() does not use (a third of its
+    per-call time for one spectrum per call)."""
+    x = R / np.linalg.norm(R, axis=1, keepdims=True)
+    y = v - np.sum(v * x, axis=1)[:, None] * x
+    vp = np.linalg.norm(y, axis=1)
+    flat = ~(vp > 1e-12 * np.maximum(np.linalg.norm(v, axis=1), 1e-300))
+    if flat.any():
+        k = int(np.argmax(flat))
+        raise ValueError(f"v[{k}] = {v[k]} has no component perpendicular to R[{k}]: the along-track axis is undefined")
+    y /= vp[:, None]
+    M = np.empty((len(R), 3, 3))
+    M[:, 0] = x
+    M[:, 1] = y
+    # x cross y as numpy.cross evaluates it (a1 b2 - a2 b1, ...)
+    M[:, 2, 0] = x[:, 1] * y[:, 2] - x[:, 2] * y[:, 1]
+    M[:, 2, 1] = x[:, 2] * y[:, 0] - x[:, 0] * y[:, 2]
+    M[:, 2, 2] = x[:, 0] * y[:, 1] - x[:, 1] * y[:, 0]
+    return M
+
+
 def _run_kernel(cells: CellTable, R: np.ndarray, frames: np.ndarray, zeta: np.ndarray, area: float, threads: int,
                 ascale: float = 1.0, buffers: "_PairBuffers | None" = None):
     """Both kernel passes; returns (idx, d, gsh, scal, buffers). The angles come out times
@@ -920,7 +943,11 @@ def _run_kernel(cells: CellTable, R: np.ndarray, frames: np.ndarray, zeta: np.nd
         np.cumsum(counts[:-1], out=offsets[1:])
     m = int(counts.sum())
     if buffers is None or buffers.capacity < m:
-        buffers = _PairBuffers(m)
+        # reused memory that is too small grows by half at least, so that a sequence of
+        # calls with slowly growing footprints (one spectrum per call along an orbit)
+        # does not take fresh memory, and its page faults, on almost every call
+        grow = 0 if buffers is None else buffers.capacity + buffers.capacity // 2
+        buffers = _PairBuffers(max(m, grow))
     idx, d, gsh, scal = buffers.views(m)
     if m == 0:                      # nothing to fill (f2py refuses zero-size in-place arrays)
         return idx, d, gsh, scal, buffers
@@ -1026,8 +1053,7 @@ def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta:
         vv = _vectors(v, "v")
         if len(vv) != len(R) and len(vv) != 1:
             raise ValueError(f"v: {len(vv)} velocities for {len(R)} positions")
-        frames = np.broadcast_to(spacecraft_frame(R, np.broadcast_to(vv, R.shape), method="state").reshape(-1, 3, 3),
-                                 (len(R), 3, 3))
+        frames = _state_frames(R, np.broadcast_to(vv, R.shape))
     if flux_fraction is not None:
         q = _real(flux_fraction, "flux_fraction", lo=0.0, lo_open=True, hi=1.0)
         zeta_arr = np.zeros(len(R))
