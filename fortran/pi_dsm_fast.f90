@@ -1,0 +1,516 @@
+!> Fast path of the exact DSM mode (method "exact"): the same answer as
+!> pi_dsm_exact's exact_ray (the contract of docs/dsm-contract.md, to
+!> refine_tol along the ray), with far fewer exact geodetic conversions.
+!>
+!> exact_ray converts every point of its depth-first subdivision (~0.3 us
+!> each). Here the subdivision runs on cheap points whose bounds stay rigorous:
+!>  * height: h(r) is convex along the line, so the tangents at the exact end
+!>    points of a piece are lower bounds everywhere; a segment's lowest height
+!>    is bounded by the larger of the two tangents (no conversion);
+!>  * longitude: atan2 of the (linear) ray point, exact to rounding and
+!>    monotone along a line;
+!>  * latitude: linear interpolation between the exact latitudes at the piece
+!>    ends, widened by the interpolation error bound psi''max L^2 / 8 with
+!>    |psi''| <= kap/den + (|dM/dpsi|/den + 1)/den^2 (psi' = (l.north)/(M + h);
+!>    |d(l.north)/dr| <= kap = 1/den + 1/rho as in pi_dsm_exact; |l.north| <= 1,
+!>    |h'| <= 1; den = M_min + min(h_low, 0), rho the piece's axis distance).
+!> The slab [r_in, r_end] (first crossings of H_max and H_min) is cut into
+!> pieces of at most fast_piece (units of a) with exact conversions at their
+!> ends. Exact conversions remain only where an answer is decided: Newton in a
+!> candidate "nearest" cell and the classification of a final 1e-6 segment.
+!>
+!> The fast path declines (ok = .false.; the caller then runs exact_ray) when
+!> its assumptions do not hold: a slab longer than fast_maxlen, a latitude
+!> widening above fast_maxdv cells (near the poles, huge spans), a ray that
+!> meets no data over the slab but has to look for the first low point outside
+!> the DSM (the LEFT_DSM search), or its segment limit. So correctness never
+!> depends on its coverage; the statuses and distances equal exact_ray's to
+!> refine_tol (tests/test_dsm_fast.py).
+module pi_dsm_fast
+  use pi_kinds, only: dp
+  use pi_status
+  use pi_vector, only: pi
+  use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, pt_ok, pt_nodata
+  use pi_follow, only: dsm_ray_t, ray_geo, level_crossing_back, ellipsoid_entry, set_hit, set_event, refine_tol
+  use pi_geodetic, only: ecr_to_geodetic
+  implicit none
+  private
+
+  public :: fast_ray, fast_piece, fast_sub, fast_maxlen, fast_maxdv
+
+  !> longest piece with one linear latitude model (units of a: ~255 m on Earth)
+  real(dp), parameter :: fast_piece = 4.0e-5_dp
+  !> longest slab the fast path takes (units of a: ~64 km on Earth)
+  real(dp), parameter :: fast_maxlen = 1.0e-2_dp
+  !> largest latitude widening (grid rows) the fast path accepts
+  real(dp), parameter :: fast_maxdv = 0.25_dp
+  !> longest candidate segment searched as a piece of its own (units of a: ~1.9 m on Earth)
+  real(dp), parameter :: fast_sub = 3.0e-7_dp
+  !> rounding margins of the bounds: the exact conversion's height (relative
+  !> to a; its Newton stops at a step of 1e-15 (|t| + a^2), then rounding of a
+  !> few ulps of a) and latitude (radians; atan2 of the foot-point gradient)
+  real(dp), parameter :: fast_hmarg = 1.0e-14_dp, fast_latmarg = 1.0e-14_dp
+  !> segment limit per ray and subdivision stack depth
+  integer, parameter :: fast_maxseg = 20000, fast_depth = 128
+  !> outcomes of a piece search
+  integer, parameter :: out_clear = 0, out_decided = 1, out_declined = 2
+
+  !> an exact ray point: r, geodetic lat, lon, h, dh/dr, grid u, v
+  type :: xpt_t
+    real(dp) :: r, lat, lon, h, dh, u, v
+  end type xpt_t
+
+  !> a cheap ray point: r, grid u (exact to rounding), v of the linear latitude model
+  type :: lpt_t
+    real(dp) :: r, u, v
+  end type lpt_t
+
+  !> a piece [A, B]: its exact ends and the latitude widening dv (grid rows)
+  type :: piece_t
+    type(xpt_t) :: a, b
+    real(dp) :: dv, hmarg
+  end type piece_t
+
+contains
+
+  !> Exact ray point at r (one conversion).
+  pure subroutine eval_x(dsm, s, l, r, q)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3), r
+    type(xpt_t), intent(out) :: q
+    call ray_geo(dsm, s, l, r, q%lat, q%lon, q%h, q%dh)
+    q%r = r
+    call dsm_grid_uv(dsm, q%lat, q%lon, q%u, q%v)
+  end subroutine eval_x
+
+  !> Cheap ray point at r on piece pc: u from atan2, v from the linear model.
+  pure subroutine eval_l(dsm, s, l, pc, r, q)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3), r
+    type(piece_t), intent(in) :: pc
+    type(lpt_t), intent(out) :: q
+    real(dp) :: p(3), lon, w, vdum
+    p = s + r * l                                           ! Shin & Park eq. 1
+    lon = 0.0_dp
+    if (p(1) /= 0.0_dp .or. p(2) /= 0.0_dp) lon = atan2(p(2), p(1))
+    call dsm_grid_uv(dsm, 0.0_dp, lon, q%u, vdum)
+    w = (r - pc%a%r) / (pc%b%r - pc%a%r)
+    q%v = pc%a%v + w * (pc%b%v - pc%a%v)
+    q%r = r
+  end subroutine eval_l
+
+  !> Cheap point of an exact one.
+  pure function to_l(x) result(q)
+    type(xpt_t), intent(in) :: x
+    type(lpt_t) :: q
+    q%r = x%r
+    q%u = x%u
+    q%v = x%v
+  end function to_l
+
+  !> Lower bound of h on [ra, rb] from the tangents at the piece's exact ends
+  !> (convexity: each tangent is below h everywhere; their maximum is convex
+  !> and piecewise linear, so its minimum is at an end or at the kink).
+  pure function h_lower(pc, ra, rb) result(hlow)
+    type(piece_t), intent(in) :: pc
+    real(dp), intent(in) :: ra, rb
+    real(dp) :: hlow, rk, den
+    hlow = min(tmax(ra), tmax(rb))
+    den = pc%a%dh - pc%b%dh
+    if (den < 0.0_dp) then                                  ! the tangents cross
+      rk = (pc%b%h - pc%a%h + pc%a%dh * pc%a%r - pc%b%dh * pc%b%r) / den
+      if (rk > ra .and. rk < rb) hlow = min(hlow, tmax(rk))
+    end if
+    hlow = hlow - pc%hmarg - 1.0e-13_dp * abs(hlow)
+  contains
+    pure function tmax(r) result(t)
+      real(dp), intent(in) :: r
+      real(dp) :: t
+      t = max(pc%a%h + pc%a%dh * (r - pc%a%r), pc%b%h + pc%b%dh * (r - pc%b%r))
+    end function tmax
+  end function h_lower
+
+  !> Bounds of the segment [pa, pb] of piece pc (as pi_dsm_exact's
+  !> segment_bounds): hlow <= h on it, hb >= the surface over its box (+huge
+  !> unknown or no-data), cell >= 0 when the box is one "nearest" cell, rsplit
+  !> the estimated crossing of the one cell boundary it straddles (0: none).
+  pure subroutine seg_bounds(dsm, pc, pa, pb, hlow, hb, cell, rsplit)
+    type(dsm_t), intent(in) :: dsm
+    type(piece_t), intent(in) :: pc
+    type(lpt_t), intent(in) :: pa, pb
+    real(dp), intent(out) :: hlow, hb, rsplit
+    integer, intent(out) :: cell
+    real(dp) :: v0, v1, u0, u1, du, t
+    integer :: ci0, ci1, cj0, cj1
+    logical :: out
+    hlow = h_lower(pc, pa%r, pb%r)
+    cell = -1
+    rsplit = 0.0_dp
+    v0 = min(pa%v, pb%v) - pc%dv
+    v1 = max(pa%v, pb%v) + pc%dv
+    du = modulo((pb%u - pa%u) * dsm%dlon + pi, 2.0_dp * pi) - pi
+    hb = huge(1.0_dp)
+    if (.not. (abs(du) < 0.5_dp * pi)) return               ! longitude is monotone: a short sweep only
+    u0 = min(pa%u, pa%u + du / dsm%dlon) - 1.0e-9_dp
+    u1 = max(pa%u, pa%u + du / dsm%dlon) + 1.0e-9_dp
+    call dsm_box_bound(dsm, u0, u1, v0, v1, hb, out)
+    if (dsm%interp == interp_nearest .and. .not. out .and. .not. dsm%global .and. hb < huge(1.0_dp)) then
+      ci0 = ceiling(v0 - 0.5_dp); ci1 = floor(v1 + 0.5_dp)
+      cj0 = ceiling(u0 - 0.5_dp); cj1 = floor(u1 + 0.5_dp)
+      if (ci0 == ci1 .and. cj0 == cj1) then
+        cell = 1
+      else if (ci1 - ci0 + cj1 - cj0 == 1) then
+        ! one wall between: split just before its estimated crossing (only speed depends on it)
+        if (cj1 > cj0) then
+          t = (cj0 + 0.5_dp - pa%u) / (du / dsm%dlon)
+        else
+          t = (ci0 + 0.5_dp - pa%v) / (pb%v - pa%v)
+        end if
+        if (t > 0.0_dp .and. t < 1.0_dp) rsplit = pa%r + t * (pb%r - pa%r)
+      end if
+    end if
+  end subroutine seg_bounds
+
+  !> First r >= r0 with h(r) <= level, as pi_follow's level_crossing (Newton
+  !> from the left on the convex h - level, started on the raised ellipsoid),
+  !> returning the exact point x there (r within 1e-9 before the crossing).
+  !> It stops without the confirming step: after a Newton step of length d
+  !> from a point with slope dh < 0, h'' <= c = 1/(M_min + min(level, 0)) puts
+  !> the crossing within c d^2 / |dh| after the new point (when that is below
+  !> 0.4 d). neval counts conversions.
+  pure subroutine fast_crossing(dsm, s, l, r0, level, x, found, neval)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3), r0, level
+    type(xpt_t), intent(out) :: x
+    logical, intent(out) :: found
+    integer, intent(inout) :: neval
+    real(dp) :: r, rg, c, d, eps, den
+    logical :: hit, have
+    integer :: it
+    found = .false.
+    have = .false.
+    r = r0
+    den = dsm%a * (1.0_dp - dsm%e2) + min(level, 0.0_dp)
+    c = huge(1.0_dp)
+    if (den > 0.0_dp) c = 1.0_dp / den
+    if (level > -0.5_dp * dsm%b) then
+      rg = level + 1.0e-9_dp * dsm%a + dsm%e2**2 * abs(level) / 8.0_dp
+      call ellipsoid_entry(dsm%a + rg, dsm%b + rg, s, l, rg, hit)
+      if (hit .and. rg > r0) then
+        call eval_x(dsm, s, l, rg, x)
+        neval = neval + 1
+        if (x%h - level > 0.0_dp .and. x%dh < 0.0_dp) then
+          r = rg
+          have = .true.
+        end if
+      end if
+    end if
+    do it = 1, 300
+      if (.not. have) then
+        call eval_x(dsm, s, l, r, x)
+        neval = neval + 1
+      end if
+      have = .false.
+      if (x%h - level <= 0.0_dp) then
+        found = .true.
+        return
+      end if
+      if (.not. (x%dh < 0.0_dp)) return                ! rising or NaN: never reaches the level
+      d = -(x%h - level) / x%dh
+      r = r + d
+      if (d <= 1.0e-9_dp) then
+        found = .true.
+        call eval_x(dsm, s, l, r, x)
+        neval = neval + 1
+        return
+      end if
+      eps = c * d * d / (-x%dh)
+      if (eps <= 1.0e-9_dp .and. eps <= 0.4_dp * d) then
+        found = .true.
+        call eval_x(dsm, s, l, r, x)
+        neval = neval + 1
+        return
+      end if
+    end do
+  end subroutine fast_crossing
+
+  !> Build piece [xa, xb]: its latitude widening in grid rows (ok = .false.
+  !> when the bound does not apply or exceeds fast_maxdv).
+  pure subroutine make_piece(dsm, s, l, xa, xb, pc, ok)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3)
+    type(xpt_t), intent(in) :: xa, xb
+    type(piece_t), intent(out) :: pc
+    logical, intent(out) :: ok
+    real(dp) :: mmin, den, rho, kap, cm, psi2, len
+    pc%a = xa
+    pc%b = xb
+    pc%dv = huge(1.0_dp)
+    pc%hmarg = fast_hmarg * dsm%a
+    ok = .false.
+    len = xb%r - xa%r
+    if (.not. (len > 0.0_dp)) return
+    mmin = dsm%a * (1.0_dp - dsm%e2)                         ! smallest meridian radius of curvature
+    den = mmin + min(h_lower(pc, xa%r, xb%r), 0.0_dp)
+    if (.not. (den > 0.5_dp * mmin)) return
+    rho = axis_distance(s, l, xa%r, xb%r)
+    if (.not. (rho > 1.0e-3_dp * dsm%a)) return
+    kap = 1.0_dp / den + 1.0_dp / rho                        ! |d(l.north)/dr|
+    cm = 1.5_dp * dsm%e2 * dsm%a / (1.0_dp - dsm%e2)**1.5_dp  ! |dM/dpsi|
+    psi2 = kap / den + (cm / den + 1.0_dp) / den**2          ! |psi''|
+    ! interpolation error psi2 L^2 / 8 and rounding of the exact latitudes
+    pc%dv = (0.125_dp * psi2 * len * len + fast_latmarg * (1.0_dp + abs(xa%lat) + abs(xb%lat))) / abs(dsm%dlat)
+    ok = pc%dv <= fast_maxdv .and. abs(xb%u - xa%u) < 0.25_dp * pi / dsm%dlon
+  end subroutine make_piece
+
+  !> The exact mode's answer for one ray (l unit, s above the surface), or
+  !> ok = .false. (res%nsteps counts its conversions; nothing else is set)
+  !> when the fast path declines and exact_ray must be run.
+  pure subroutine fast_ray(dsm, s, l, res, ok)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3)
+    type(dsm_ray_t), intent(inout) :: res
+    logical, intent(out) :: ok
+    type(xpt_t) :: x_in, x_end, xa, xb
+    real(dp) :: r_in, r_end, r_far, lat, lon, h, dh, hs, rnext
+    logical :: found
+    integer :: code, k, npc, outcome, nseg
+    ok = .true.
+    res%nsteps = 0
+    ! ---- 1. the search interval (as exact_ray, with the crossings' end points kept)
+    if (dot_product(s, s) > (dsm%a + max(dsm%hmax, 0.0_dp) + 1.0e-9_dp * dsm%a)**2) then
+      h = huge(1.0_dp)                                   ! outside the sphere |P| = a + H_max: h > H_max
+    else
+      call ray_geo(dsm, s, l, 0.0_dp, lat, lon, h, dh)
+      res%nsteps = 1
+    end if
+    if (h <= dsm%hmax) then
+      call eval_x(dsm, s, l, 0.0_dp, x_in)
+      res%nsteps = res%nsteps + 1
+    else
+      call fast_crossing(dsm, s, l, 0.0_dp, dsm%hmax, x_in, found, res%nsteps)
+      if (.not. found) then
+        res%status = ray_dsm_miss
+        return
+      end if
+    end if
+    r_in = x_in%r
+    call fast_crossing(dsm, s, l, r_in, dsm%hmin, x_end, found, res%nsteps)
+    if (.not. found) then
+      r_far = far_distance(s, l, dsm%a + max(dsm%hmax, 0.0_dp) + 1.0_dp)
+      call level_crossing_back(dsm, s, l, max(r_far, r_in), dsm%hmax, r_end, found, res%nsteps)
+      if (.not. found) r_end = r_in
+      r_end = max(r_end, r_in)
+      call eval_x(dsm, s, l, r_end, x_end)
+      res%nsteps = res%nsteps + 1
+    end if
+    r_end = x_end%r
+    ! ---- the start point itself
+    call dsm_height(dsm, x_in%lat, x_in%lon, hs, code)
+    if (code == pt_nodata) then
+      call set_event(dsm, s, l, r_in, ray_no_data, res)
+      return
+    end if
+    if (code == pt_ok .and. x_in%h <= hs) then
+      call set_hit(dsm, s, l, r_in, ray_hit, res)
+      return
+    end if
+    if (.not. (r_end - r_in <= fast_maxlen * dsm%a)) then
+      ok = .false.
+      return
+    end if
+    ! ---- 2. pieces in ray order, each searched depth-first on cheap points
+    npc = max(1, ceiling((r_end - r_in) / (fast_piece * dsm%a)))
+    xb = x_in
+    nseg = 0
+    do k = 1, npc
+      xa = xb
+      if (k == npc) then
+        xb = x_end
+      else
+        rnext = r_in + (r_end - r_in) * (real(k, dp) / npc)
+        call eval_x(dsm, s, l, rnext, xb)
+        res%nsteps = res%nsteps + 1
+      end if
+      if (.not. (xb%r > xa%r)) cycle
+      call search_piece(dsm, s, l, xa, xb, 1, res, outcome, nseg)
+      if (outcome == out_decided) return
+      if (outcome == out_declined) then
+        ok = .false.
+        return
+      end if
+    end do
+    ! ---- the interval is clear up to r_end: the end point decides (as exact_ray)
+    call dsm_height(dsm, x_end%lat, x_end%lon, hs, code)
+    if (code == pt_ok .and. x_end%h <= hs + 1.0e-12_dp * dsm%a + 1.0e-9_dp * abs(hs)) then
+      call set_hit(dsm, s, l, r_end, ray_hit, res)
+      return
+    end if
+    ! ---- no hit, no no-data: the search for the first low point outside is exact_ray's
+    ok = .false.
+  end subroutine fast_ray
+
+  !> Depth-first search of the piece [xa, xb] (exact ends) for the first hit or
+  !> no-data point, in ray order, on cheap points. At level 1 a segment that
+  !> cannot be ruled out and is at most fast_sub long is searched as a piece of
+  !> its own (level 2: exact ends, so its tangent bound is within
+  !> fast_sub^2 / (8 M_min) of h). outcome: out_clear (nothing on the piece),
+  !> out_decided (res holds the hit or no-data event), out_declined.
+  recursive pure subroutine search_piece(dsm, s, l, xa, xb, level, res, outcome, nseg)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3)
+    type(xpt_t), intent(in) :: xa, xb
+    integer, intent(in) :: level
+    type(dsm_ray_t), intent(inout) :: res
+    integer, intent(out) :: outcome
+    integer, intent(inout) :: nseg
+    type(piece_t) :: pc
+    type(xpt_t) :: xc, xd
+    type(lpt_t) :: pa, pb, pm, stack(fast_depth)
+    real(dp) :: lat, lon, h, dh, hs, hlow, hb, r, g, dr, hc, rsplit, rm
+    logical :: found, pok
+    integer :: code, nst, it, cell, sub
+    outcome = out_declined
+    call make_piece(dsm, s, l, xa, xb, pc, pok)
+    if (.not. pok) return
+    pa = to_l(xa)
+    pb = to_l(xb)
+    nst = 0
+    do
+      nseg = nseg + 1
+      if (nseg > fast_maxseg) then
+        outcome = out_declined
+        return
+      end if
+      call seg_bounds(dsm, pc, pa, pb, hlow, hb, cell, rsplit)
+      if (hlow > hb) then                                 ! nothing to meet in this segment
+        call next_segment(pa, pb, stack, nst)
+        if (nst < 0) exit
+        cycle
+      end if
+      if (cell >= 0) then                                 ! one nearest cell: Newton on h - H_cell
+        hc = hb
+        r = pa%r
+        call eval_x(dsm, s, l, r, xc)
+        res%nsteps = res%nsteps + 1
+        g = xc%h - hc
+        dh = xc%dh
+        found = .false.
+        do it = 1, 100
+          if (g <= 0.0_dp) then
+            found = .true.
+            exit
+          end if
+          if (.not. (dh < 0.0_dp)) exit                   ! rising: convex h never comes back down
+          dr = -g / dh
+          r = r + dr
+          if (r > pb%r) exit                              ! the first root lies beyond the segment
+          if (dr <= 1.0e-9_dp) then
+            found = .true.
+            exit
+          end if
+          call ray_geo(dsm, s, l, r, lat, lon, h, dh)
+          res%nsteps = res%nsteps + 1
+          g = h - hc
+        end do
+        if (found) then
+          call set_hit(dsm, s, l, r, ray_hit, res)
+          outcome = out_decided
+          return
+        end if
+        if (it <= 100) then
+          call next_segment(pa, pb, stack, nst)
+          if (nst < 0) exit
+          cycle
+        end if
+      end if
+      if (pb%r - pa%r <= refine_tol) then                 ! a short segment: classify its end exactly
+        call eval_x(dsm, s, l, pb%r, xc)
+        res%nsteps = res%nsteps + 1
+        call dsm_height(dsm, xc%lat, xc%lon, hs, code)
+        if (code == pt_nodata) then
+          call set_event(dsm, s, l, pb%r, ray_no_data, res)
+          outcome = out_decided
+          return
+        else if (code == pt_ok .and. xc%h <= hs) then
+          call set_hit(dsm, s, l, pb%r, ray_hit, res)
+          outcome = out_decided
+          return
+        end if
+        call next_segment(pa, pb, stack, nst)
+        if (nst < 0) exit
+        cycle
+      end if
+      if (level == 1 .and. pb%r - pa%r <= fast_sub * dsm%a) then   ! a short candidate: its own piece
+        call eval_x(dsm, s, l, pa%r, xc)
+        call eval_x(dsm, s, l, pb%r, xd)
+        res%nsteps = res%nsteps + 2
+        call search_piece(dsm, s, l, xc, xd, 2, res, sub, nseg)
+        if (sub /= out_clear) then
+          outcome = sub
+          return
+        end if
+        call next_segment(pa, pb, stack, nst)
+        if (nst < 0) exit
+        cycle
+      end if
+      if (nst >= fast_depth) then
+        outcome = out_declined
+        return
+      end if
+      rm = 0.5_dp * (pa%r + pb%r)
+      if (rsplit > 0.0_dp) then
+        if (rsplit - 0.25_dp * refine_tol > pa%r + 0.125_dp * refine_tol) then
+          rm = rsplit - 0.25_dp * refine_tol
+        else if (rsplit + 0.25_dp * refine_tol < pb%r - 0.125_dp * refine_tol) then
+          rm = rsplit + 0.25_dp * refine_tol
+        end if
+      end if
+      call eval_l(dsm, s, l, pc, rm, pm)
+      nst = nst + 1
+      stack(nst) = pb
+      pb = pm
+    end do
+    outcome = out_clear
+  end subroutine search_piece
+
+  !> Move on to the next pending segment [pb, top of the stack]; nst = -1 when none is left.
+  pure subroutine next_segment(pa, pb, stack, nst)
+    type(lpt_t), intent(inout) :: pa, pb
+    type(lpt_t), intent(in) :: stack(:)
+    integer, intent(inout) :: nst
+    pa = pb
+    if (nst == 0) then
+      nst = -1
+      return
+    end if
+    pb = stack(nst)
+    nst = nst - 1
+  end subroutine next_segment
+
+  !> Smallest distance from the z axis of the points s + r l, r in [r0, r1].
+  pure function axis_distance(s, l, r0, r1) result(d)
+    real(dp), intent(in) :: s(3), l(3), r0, r1
+    real(dp) :: d, ll, rr
+    ll = l(1)**2 + l(2)**2
+    if (ll > 0.0_dp) then
+      rr = -(s(1) * l(1) + s(2) * l(2)) / ll
+    else
+      rr = r0
+    end if
+    rr = min(max(rr, r0), r1)
+    d = sqrt((s(1) + rr * l(1))**2 + (s(2) + rr * l(2))**2)
+  end function axis_distance
+
+  !> Distance along the ray to where it leaves the sphere of radius rad (0 if never inside).
+  pure function far_distance(s, l, rad) result(r)
+    real(dp), intent(in) :: s(3), l(3), rad
+    real(dp) :: r, b, c, disc
+    b = dot_product(s, l)
+    c = dot_product(s, s) - rad * rad
+    disc = b * b - c
+    r = 0.0_dp
+    if (disc > 0.0_dp) r = max(0.0_dp, -b + sqrt(disc))
+  end function far_distance
+
+end module pi_dsm_fast
