@@ -68,7 +68,7 @@ module pi_dsm_fast
   !> a piece [A, B]: its exact ends and the latitude widening dv (grid rows)
   type :: piece_t
     type(xpt_t) :: a, b
-    real(dp) :: dv, hmarg
+    real(dp) :: dv, du, hmarg
   end type piece_t
 
 contains
@@ -83,18 +83,14 @@ contains
     call dsm_grid_uv(dsm, q%lat, q%lon, q%u, q%v)
   end subroutine eval_x
 
-  !> Cheap ray point at r on piece pc: u from atan2, v from the linear model.
-  pure subroutine eval_l(dsm, s, l, pc, r, q)
-    type(dsm_t), intent(in) :: dsm
-    real(dp), intent(in) :: s(3), l(3), r
+  !> Cheap ray point at r on piece pc: u and v of the linear models.
+  pure subroutine eval_l(pc, r, q)
     type(piece_t), intent(in) :: pc
+    real(dp), intent(in) :: r
     type(lpt_t), intent(out) :: q
-    real(dp) :: p(3), lon, w, vdum
-    p = s + r * l                                           ! Shin & Park eq. 1
-    lon = 0.0_dp
-    if (p(1) /= 0.0_dp .or. p(2) /= 0.0_dp) lon = atan2(p(2), p(1))
-    call dsm_grid_uv(dsm, 0.0_dp, lon, q%u, vdum)
+    real(dp) :: w
     w = (r - pc%a%r) / (pc%b%r - pc%a%r)
+    q%u = pc%a%u + w * (pc%b%u - pc%a%u)
     q%v = pc%a%v + w * (pc%b%v - pc%a%v)
     q%r = r
   end subroutine eval_l
@@ -148,11 +144,9 @@ contains
     rsplit = 0.0_dp
     v0 = min(pa%v, pb%v) - pc%dv
     v1 = max(pa%v, pb%v) + pc%dv
-    du = modulo((pb%u - pa%u) * dsm%dlon + pi, 2.0_dp * pi) - pi
-    hb = huge(1.0_dp)
-    if (.not. (abs(du) < 0.5_dp * pi)) return               ! longitude is monotone: a short sweep only
-    u0 = min(pa%u, pa%u + du / dsm%dlon) - 1.0e-9_dp
-    u1 = max(pa%u, pa%u + du / dsm%dlon) + 1.0e-9_dp
+    u0 = min(pa%u, pb%u) - pc%du
+    u1 = max(pa%u, pb%u) + pc%du
+    du = pb%u - pa%u
     call dsm_box_bound(dsm, u0, u1, v0, v1, hb, out)
     if (dsm%interp == interp_nearest .and. .not. out .and. .not. dsm%global .and. hb < huge(1.0_dp)) then
       ci0 = ceiling(v0 - 0.5_dp); ci1 = floor(v1 + 0.5_dp)
@@ -162,7 +156,7 @@ contains
       else if (ci1 - ci0 + cj1 - cj0 == 1) then
         ! one wall between: split just before its estimated crossing (only speed depends on it)
         if (cj1 > cj0) then
-          t = (cj0 + 0.5_dp - pa%u) / (du / dsm%dlon)
+          t = (cj0 + 0.5_dp - pa%u) / du
         else
           t = (ci0 + 0.5_dp - pa%v) / (pb%v - pa%v)
         end if
@@ -260,7 +254,10 @@ contains
     psi2 = kap / den + (cm / den + 1.0_dp) / den**2          ! |psi''|
     ! interpolation error psi2 L^2 / 8 and rounding of the exact latitudes
     pc%dv = (0.125_dp * psi2 * len * len + fast_latmarg * (1.0_dp + abs(xa%lat) + abs(xb%lat))) / abs(dsm%dlat)
-    ok = pc%dv <= fast_maxdv .and. abs(xb%u - xa%u) < 0.25_dp * pi / dsm%dlon
+    ! longitude along a line: rho^2 lambda' is constant, so |lambda''| = 2 |lambda' rho'| / rho <= 2 / rho^2;
+    ! linear interpolation error <= L^2 / (4 rho^2)
+    pc%du = (0.25_dp * (len / rho)**2 + fast_latmarg * (1.0_dp + pi)) / dsm%dlon
+    ok = pc%dv <= fast_maxdv .and. pc%du <= fast_maxdv .and. abs(xb%u - xa%u) < 0.25_dp * pi / dsm%dlon
   end subroutine make_piece
 
   !> The exact mode's answer for one ray (l unit, s above the surface), or
@@ -466,7 +463,7 @@ contains
           rm = rsplit + 0.25_dp * refine_tol
         end if
       end if
-      call eval_l(dsm, s, l, pc, rm, pm)
+      call eval_l(pc, rm, pm)
       nst = nst + 1
       stack(nst) = pb
       pb = pm
