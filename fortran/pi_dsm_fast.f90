@@ -33,6 +33,7 @@ module pi_dsm_fast
   use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, pt_ok, pt_nodata
   use pi_follow, only: dsm_ray_t, ray_geo, level_crossing_back, ellipsoid_entry, set_hit, set_event, refine_tol
   use pi_geodetic, only: ecr_to_geodetic
+  use, intrinsic :: ieee_arithmetic, only: ieee_is_nan
   implicit none
   private
 
@@ -164,6 +165,118 @@ contains
       end if
     end if
   end subroutine seg_bounds
+
+  !> Within one bilinear cell with data at its four nodes: the first r in
+  !> [pa, pb] where the lower bound of h (the larger tangent, a line on each
+  !> side of the tangents' kink) meets an upper bound of the surface (the
+  !> bilinear along the linear (u, v) models, a quadratic in r, plus the
+  !> models' widening times the surface's slopes and a rounding margin).
+  !> st = 0: not one bilinear cell with data (not used); 1: h stays above the
+  !> surface on [pa, pb]; 2: no entry before rstar (the candidate).
+  pure subroutine cell_solve(dsm, pc, pa, pb, st, rstar)
+    type(dsm_t), intent(in) :: dsm
+    type(piece_t), intent(in) :: pc
+    type(lpt_t), intent(in) :: pa, pb
+    integer, intent(out) :: st
+    real(dp), intent(out) :: rstar
+    real(dp) :: v0, v1, u0, u1, h00, h01, h10, h11, c, su, sv, m, fa, fb, al, be, len
+    real(dp) :: a0, a1, a2, tk, ta, tb, troot
+    integer :: i, j, side
+    st = 0
+    rstar = pb%r
+    if (dsm%interp == interp_nearest) return
+    v0 = min(pa%v, pb%v) - pc%dv
+    v1 = max(pa%v, pb%v) + pc%dv
+    u0 = min(pa%u, pb%u) - pc%du
+    u1 = max(pa%u, pb%u) + pc%du
+    if (.not. (v0 >= 0.0_dp .and. u0 >= 0.0_dp .and. v1 <= dsm%nrows - 1 .and. u1 <= dsm%ncols - 1)) return
+    i = min(int(v0), dsm%nrows - 2)
+    j = min(int(u0), dsm%ncols - 2)
+    if (v1 > i + 1 .or. u1 > j + 1) return
+    h00 = dsm%hgt(j + 1, i + 1)
+    h01 = dsm%hgt(j + 2, i + 1)
+    h10 = dsm%hgt(j + 1, i + 2)
+    h11 = dsm%hgt(j + 2, i + 2)
+    if (ieee_is_nan(h00) .or. ieee_is_nan(h01) .or. ieee_is_nan(h10) .or. ieee_is_nan(h11)) return
+    c = h00 - h01 - h10 + h11
+    su = max(abs(h01 - h00), abs(h11 - h10))               ! |dH/du| in the cell
+    sv = max(abs(h10 - h00), abs(h11 - h01))               ! |dH/dv|
+    m = su * pc%du + sv * pc%dv + 1.0e-13_dp * (abs(h00) + abs(h01) + abs(h10) + abs(h11)) + pc%hmarg
+    len = pb%r - pa%r
+    fa = pa%u - j
+    fb = pa%v - i
+    al = (pb%u - pa%u) / len
+    be = (pb%v - pa%v) / len
+    ! upper bound of the surface U(t) = a0 + a1 t + a2 t^2, t = r - pa%r (bilinear of the linear models)
+    a0 = h00 + (h01 - h00) * fa + (h10 - h00) * fb + c * fa * fb + m
+    a1 = (h01 - h00) * al + (h10 - h00) * be + c * (fa * be + fb * al)
+    a2 = c * al * be
+    ! the tangents' kink in t (tangent A is the larger before it, B after)
+    tk = huge(1.0_dp)
+    if (pc%a%dh < pc%b%dh) tk = (pc%b%h - pc%a%h + pc%a%dh * pc%a%r - pc%b%dh * pc%b%r) / (pc%a%dh - pc%b%dh) &
+                                - pa%r
+    st = 1
+    do side = 1, 2
+      if (side == 1) then
+        ta = 0.0_dp
+        tb = min(len, tk)
+        if (.not. (tb >= ta)) cycle
+        call first_root(tangent(pc%a, pa%r) - a0, pc%a%dh - a1, -a2, ta, tb, troot)
+      else
+        ta = max(0.0_dp, min(tk, len))
+        tb = len
+        call first_root(tangent(pc%b, pa%r) - a0, pc%b%dh - a1, -a2, ta, tb, troot)
+      end if
+      if (troot <= tb) then
+        st = 2
+        rstar = pa%r + max(ta, troot - 1.0e-12_dp * abs(troot) - 1.0e-3_dp * refine_tol)
+        return
+      end if
+    end do
+  contains
+    !> the tangent at x evaluated at r0 (its value at t = 0), less the rounding margins
+    pure function tangent(x, r0) result(v)
+      type(xpt_t), intent(in) :: x
+      real(dp), intent(in) :: r0
+      real(dp) :: v
+      v = x%h + x%dh * (r0 - x%r)
+      v = v - 1.0e-13_dp * abs(v)
+    end function tangent
+  end subroutine cell_solve
+
+  !> Smallest t in [ta, tb] with e0 + e1 t + e2 t^2 <= 0 (tb + 1 when none).
+  pure subroutine first_root(e0, e1, e2, ta, tb, t)
+    real(dp), intent(in) :: e0, e1, e2, ta, tb
+    real(dp), intent(out) :: t
+    real(dp) :: disc, q, r1, r2, w
+    t = tb + 1.0_dp
+    if (e0 + ta * (e1 + ta * e2) <= 0.0_dp) then
+      t = ta
+      return
+    end if
+    if (e2 == 0.0_dp) then
+      if (e1 < 0.0_dp) then
+        r1 = -e0 / e1
+        if (r1 >= ta .and. r1 <= tb) t = r1
+      end if
+      return
+    end if
+    disc = e1 * e1 - 4.0_dp * e2 * e0
+    if (.not. (disc >= 0.0_dp)) return
+    q = -0.5_dp * (e1 + sign(sqrt(disc), e1))
+    if (q == 0.0_dp) return
+    r1 = q / e2
+    r2 = e0 / q
+    if (r1 > r2) then
+      w = r1; r1 = r2; r2 = w
+    end if
+    ! the polynomial is positive at ta: the first root after ta is where it turns <= 0
+    if (r1 > ta .and. r1 <= tb) then
+      t = r1
+    else if (r2 > ta .and. r2 <= tb) then
+      t = r2
+    end if
+  end subroutine first_root
 
   !> First r >= r0 with h(r) <= level, as pi_follow's level_crossing (Newton
   !> from the left on the convex h - level, started on the raised ellipsoid),
@@ -364,9 +477,9 @@ contains
     type(piece_t) :: pc
     type(xpt_t) :: xc, xd
     type(lpt_t) :: pa, pb, pm, stack(fast_depth)
-    real(dp) :: lat, lon, h, dh, hs, hlow, hb, r, g, dr, hc, rsplit, rm
+    real(dp) :: lat, lon, h, dh, hs, hlow, hb, r, g, dr, hc, rsplit, rm, rstar
     logical :: found, pok
-    integer :: code, nst, it, cell, sub
+    integer :: code, nst, it, cell, sub, cst
     outcome = out_declined
     call make_piece(dsm, s, l, xa, xb, pc, pok)
     if (.not. pok) return
@@ -384,6 +497,36 @@ contains
         call next_segment(pa, pb, stack, nst)
         if (nst < 0) exit
         cycle
+      end if
+      if (level == 2) then                                ! one bilinear cell: the candidate in closed form
+        call cell_solve(dsm, pc, pa, pb, cst, rstar)
+        if (cst == 1) then
+          call next_segment(pa, pb, stack, nst)
+          if (nst < 0) exit
+          cycle
+        else if (cst == 2) then
+          ! no entry before rstar: classify rstar + tol/2 (a leaf of length tol/2)
+          r = min(rstar + 0.5_dp * refine_tol, pb%r)
+          call eval_x(dsm, s, l, r, xc)
+          res%nsteps = res%nsteps + 1
+          call dsm_height(dsm, xc%lat, xc%lon, hs, code)
+          if (code == pt_nodata) then
+            call set_event(dsm, s, l, r, ray_no_data, res)
+            outcome = out_decided
+            return
+          else if (code == pt_ok .and. xc%h <= hs) then
+            call set_hit(dsm, s, l, r, ray_hit, res)
+            outcome = out_decided
+            return
+          end if
+          if (r >= pb%r) then
+            call next_segment(pa, pb, stack, nst)
+            if (nst < 0) exit
+          else
+            call eval_l(pc, r, pa)                        ! [pa, r] is clear; go on from r
+          end if
+          cycle
+        end if
       end if
       if (cell >= 0) then                                 ! one nearest cell: Newton on h - H_cell
         hc = hb
