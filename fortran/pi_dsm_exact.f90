@@ -424,8 +424,14 @@ contains
         res%status = ray_bad_position
       else
         lu = l(:, k) / ln
-        call ray_geo(dsm, s(:, k), lu, 0.0_dp, lat, lon, h, dh)
-        call dsm_height(dsm, lat, lon, hs, code)
+        ! s outside the sphere |P| = a + H_max (h > H_max there) cannot be inside: skip the conversion
+        code = pt_outside
+        h = 0.0_dp
+        hs = 0.0_dp
+        if (.not. (dot_product(s(:, k), s(:, k)) > (dsm%a + max(dsm%hmax, 0.0_dp) + 1.0e-9_dp * dsm%a)**2)) then
+          call ray_geo(dsm, s(:, k), lu, 0.0_dp, lat, lon, h, dh)
+          call dsm_height(dsm, lat, lon, hs, code)
+        end if
         if (code == pt_ok .and. h <= hs) then
           res%status = ray_inside
         else if (method == dsm_method_following) then

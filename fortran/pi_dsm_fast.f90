@@ -39,8 +39,9 @@ module pi_dsm_fast
 
   public :: fast_ray, fast_piece, fast_sub, fast_maxlen, fast_maxdv
 
-  !> longest piece with one linear latitude model (units of a: ~255 m on Earth)
-  real(dp), parameter :: fast_piece = 4.0e-5_dp
+  !> longest piece with one linear latitude model (units of a: ~640 m on Earth;
+  !> its widening there is ~0.004 m on the ground)
+  real(dp), parameter :: fast_piece = 1.0e-4_dp
   !> longest slab the fast path takes (units of a: ~64 km on Earth)
   real(dp), parameter :: fast_maxlen = 1.0e-2_dp
   !> largest latitude widening (grid rows) the fast path accepts
