@@ -86,7 +86,7 @@ def test_airborne_and_grazing(city, interp):
     # grazing: 0.5-3 deg above the horizon, 100-400 m up (long slabs, several pieces)
     s2, l2 = sd.airborne_rays(city, 1500, altitude=(100.0, 400.0), elevation=(0.5, 3.0), seed=10, margin=0.45)
     s, l = np.vstack([s1, s2]), np.vstack([l1, l2])
-    frac, counts, _, _ = compare(dsm, s, l, min_fast=0.5)
+    frac, counts, _, _ = compare(dsm, s, l, min_fast=0.95)
     assert counts.get(HIT, 0) >= 2900
 
 
@@ -104,7 +104,7 @@ def test_nodata_and_edges(city, interp):
     # aimed near and beyond the edges: the ray leaves or never enters while low
     s2, l2 = sd.pushbroom_rays(city, 1000, seed=14, margin=-0.05)
     s, l = np.vstack([s1, s2]), np.vstack([l1, l2])
-    frac, counts, _, _ = compare(dsm, s, l, min_fast=0.7)
+    frac, counts, _, _ = compare(dsm, s, l, min_fast=0.9)   # LEFT_DSM rays are exact_ray's
     assert counts.get(NO_DATA, 0) >= 50 and counts.get(HIT, 0) >= 1500 and counts.get(LEFT_DSM, 0) >= 10
 
 
