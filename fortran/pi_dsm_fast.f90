@@ -32,7 +32,7 @@ module pi_dsm_fast
   use pi_vector, only: pi
   use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, pt_ok, pt_nodata
   use pi_follow, only: dsm_ray_t, ray_geo, level_crossing_back, ellipsoid_entry, set_hit, set_event, refine_tol
-  use pi_geodetic, only: ecr_to_geodetic
+  use pi_geodetic, only: ecr_to_geodetic_nb
   use, intrinsic :: ieee_arithmetic, only: ieee_is_nan
   implicit none
   private
@@ -80,7 +80,10 @@ contains
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: s(3), l(3), r
     type(xpt_t), intent(out) :: q
-    call ray_geo(dsm, s, l, r, q%lat, q%lon, q%h, q%dh)
+    real(dp) :: p(3), nx, ny, nz
+    p = s + r * l                                           ! Shin & Park eq. 1
+    call ecr_to_geodetic_nb(p(1), p(2), p(3), dsm%a, dsm%f, q%lat, q%lon, q%h, nx, ny, nz)
+    q%dh = l(1) * nx + l(2) * ny + l(3) * nz                ! dh/dr = l . n
     q%r = r
     call dsm_grid_uv(dsm, q%lat, q%lon, q%u, q%v)
   end subroutine eval_x
