@@ -131,6 +131,19 @@ contains
     end function tmax
   end function h_lower
 
+  !> End of the clear prefix from r0: the largest r where a falling tangent of
+  !> the piece is still above hb (with h_lower's margins), less 1e-3 refine_tol
+  !> for rounding; h >= that tangent > hb on [r0, rc]. rc = r0 when none.
+  pure function clear_prefix(pc, r0, hb) result(rc)
+    type(piece_t), intent(in) :: pc
+    real(dp), intent(in) :: r0, hb
+    real(dp) :: rc, lev
+    lev = hb + pc%hmarg + 1.0e-13_dp * (abs(hb) + abs(pc%a%h) + abs(pc%b%h))
+    rc = r0
+    if (pc%a%dh < 0.0_dp) rc = max(rc, pc%a%r + (lev - pc%a%h) / pc%a%dh - 1.0e-3_dp * refine_tol)
+    if (pc%b%dh < 0.0_dp) rc = max(rc, pc%b%r + (lev - pc%b%h) / pc%b%dh - 1.0e-3_dp * refine_tol)
+  end function clear_prefix
+
   !> Bounds of the segment [pa, pb] of piece pc (as pi_dsm_exact's
   !> segment_bounds): hlow <= h on it, hb >= the surface over its box (+huge
   !> unknown or no-data), cell >= 0 when the box is one "nearest" cell, rsplit
@@ -481,7 +494,7 @@ contains
     type(piece_t) :: pc
     type(xpt_t) :: xc, xd
     type(lpt_t) :: pa, pb, pm, stack(fast_depth)
-    real(dp) :: lat, lon, h, dh, hs, hlow, hb, r, g, dr, hc, rsplit, rm, rstar
+    real(dp) :: lat, lon, h, dh, hs, hlow, hb, r, g, dr, hc, rsplit, rm, rstar, rc
     logical :: found, pok
     integer :: code, nst, it, cell, sub, cst
     outcome = out_declined
@@ -501,6 +514,20 @@ contains
         call next_segment(pa, pb, stack, nst)
         if (nst < 0) exit
         cycle
+      end if
+      if (hb < huge(1.0_dp)) then
+        ! the prefix where a falling tangent is still above the box's surface bound is clear:
+        ! move the start there (a cheap step toward the first candidate, DDA-like)
+        rc = clear_prefix(pc, pa%r, hb)
+        if (rc >= pb%r) then
+          call next_segment(pa, pb, stack, nst)
+          if (nst < 0) exit
+          cycle
+        end if
+        if (rc - pa%r > 0.01_dp * (pb%r - pa%r)) then
+          call eval_l(pc, rc, pa)
+          cycle
+        end if
       end if
       if (level == 2) then                                ! one bilinear cell: the candidate in closed form
         call cell_solve(dsm, pc, pa, pb, cst, rstar)
