@@ -399,8 +399,8 @@ contains
     type(dsm_ray_t), intent(inout) :: res
     logical, intent(out) :: ok
     type(xpt_t) :: x_in, x_end, xa, xb
-    real(dp) :: r_in, r_end, r_far, lat, lon, h, dh, hs, rnext
-    logical :: found
+    real(dp) :: r_in, r_end, r_far, lat, lon, h, dh, hs, rnext, hb
+    logical :: found, out
     integer :: code, k, npc, outcome, nseg
     ok = .true.
     res%nsteps = 0
@@ -432,8 +432,14 @@ contains
       res%nsteps = res%nsteps + 1
     end if
     r_end = x_end%r
-    ! ---- the start point itself
-    call dsm_height(dsm, x_in%lat, x_in%lon, hs, code)
+    ! ---- the start point itself (a box bound below its height over data settles it without the lookup)
+    call dsm_box_bound(dsm, x_in%u - 1.0e-9_dp, x_in%u + 1.0e-9_dp, x_in%v - 1.0e-9_dp, x_in%v + 1.0e-9_dp, hb, out)
+    if (hb < x_in%h .and. .not. out) then
+      code = pt_ok
+      hs = hb
+    else
+      call dsm_height(dsm, x_in%lat, x_in%lon, hs, code)
+    end if
     if (code == pt_nodata) then
       call set_event(dsm, s, l, r_in, ray_no_data, res)
       return
@@ -546,7 +552,7 @@ contains
             outcome = out_decided
             return
           else if (code == pt_ok .and. xc%h <= hs) then
-            call set_hit(dsm, s, l, r, ray_hit, res)
+            call fast_hit(s, l, xc, hs, res)
             outcome = out_decided
             return
           end if
@@ -580,12 +586,18 @@ contains
             found = .true.
             exit
           end if
-          call ray_geo(dsm, s, l, r, lat, lon, h, dh)
+          call eval_x(dsm, s, l, r, xc)
           res%nsteps = res%nsteps + 1
-          g = h - hc
+          g = xc%h - hc
+          dh = xc%dh
         end do
         if (found) then
-          call set_hit(dsm, s, l, r, ray_hit, res)
+          if (xc%r /= r) then                             ! the last step was below 1e-9: convert there
+            call eval_x(dsm, s, l, r, xc)
+            res%nsteps = res%nsteps + 1
+          end if
+          call dsm_height(dsm, xc%lat, xc%lon, hs, code)  ! the contract's H there (walls: the larger)
+          call fast_hit(s, l, xc, hs, res)
           outcome = out_decided
           return
         end if
@@ -604,7 +616,7 @@ contains
           outcome = out_decided
           return
         else if (code == pt_ok .and. xc%h <= hs) then
-          call set_hit(dsm, s, l, pb%r, ray_hit, res)
+          call fast_hit(s, l, xc, hs, res)
           outcome = out_decided
           return
         end if
@@ -644,6 +656,22 @@ contains
     end do
     outcome = out_clear
   end subroutine search_piece
+
+  !> Fill res as a hit at the exact point x, where the surface height hs was
+  !> found (as pi_follow's set_hit, without converting and looking up again).
+  pure subroutine fast_hit(s, l, x, hs, res)
+    real(dp), intent(in) :: s(3), l(3), hs
+    type(xpt_t), intent(in) :: x
+    type(dsm_ray_t), intent(inout) :: res
+    res%status = ray_hit
+    res%r = x%r
+    res%p = s + x%r * l
+    res%lat = x%lat
+    res%lon = x%lon
+    res%h = x%h
+    res%hs = hs
+    res%incidence = acos(max(-1.0_dp, min(1.0_dp, -x%dh)))   ! from the normal: 0 = looking straight down
+  end subroutine fast_hit
 
   !> Move on to the next pending segment [pb, top of the stack]; nst = -1 when none is left.
   pure subroutine next_segment(pa, pb, stack, nst)
