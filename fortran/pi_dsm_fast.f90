@@ -1,31 +1,34 @@
 !> Fast path of the exact DSM mode (method "exact"): the same answer as
 !> pi_dsm_exact's exact_ray (the contract of docs/dsm-contract.md, to
-!> refine_tol along the ray), with far fewer exact geodetic conversions.
+!> refine_tol along the ray), with far fewer exact geodetic conversions
+!> (docs/shin-park-notes.md, "Fast exact path").
 !>
 !> exact_ray converts every point of its depth-first subdivision (~0.3 us
 !> each). Here the subdivision runs on cheap points whose bounds stay rigorous:
 !>  * height: h(r) is convex along the line, so the tangents at the exact end
 !>    points of a piece are lower bounds everywhere; a segment's lowest height
 !>    is bounded by the larger of the two tangents (no conversion);
-!>  * longitude: atan2 of the (linear) ray point, exact to rounding and
-!>    monotone along a line;
-!>  * latitude: linear interpolation between the exact latitudes at the piece
-!>    ends, widened by the interpolation error bound psi''max L^2 / 8 with
+!>  * longitude: linear between the piece's exact ends, widened by L^2/(4 rho^2)
+!>    (rho^2 lambda' is constant along a line, so |lambda''| <= 2/rho^2);
+!>  * latitude: linear between the exact ends, widened by psi''max L^2 / 8 with
 !>    |psi''| <= kap/den + (|dM/dpsi|/den + 1)/den^2 (psi' = (l.north)/(M + h);
 !>    |d(l.north)/dr| <= kap = 1/den + 1/rho as in pi_dsm_exact; |l.north| <= 1,
 !>    |h'| <= 1; den = M_min + min(h_low, 0), rho the piece's axis distance).
 !> The slab [r_in, r_end] (first crossings of H_max and H_min) is cut into
-!> pieces of at most fast_piece (units of a) with exact conversions at their
-!> ends. Exact conversions remain only where an answer is decided: Newton in a
-!> candidate "nearest" cell and the classification of a final 1e-6 segment.
+!> pieces of at most fast_piece (units of a) with exact ends. A segment that
+!> cannot be ruled out has its start moved past the prefix where a falling
+!> tangent is still above the box's surface bound; one of at most fast_sub
+!> becomes a sub-piece with exact ends (tangent bound within ~1e-7 m of h),
+!> where a "nearest" cell is solved by Newton and a bilinear cell's candidate
+!> entry in closed form (a quadratic), then classified by one conversion.
 !>
 !> The fast path declines (ok = .false.; the caller then runs exact_ray) when
-!> its assumptions do not hold: a slab longer than fast_maxlen, a latitude
-!> widening above fast_maxdv cells (near the poles, huge spans), a ray that
-!> meets no data over the slab but has to look for the first low point outside
-!> the DSM (the LEFT_DSM search), or its segment limit. So correctness never
-!> depends on its coverage; the statuses and distances equal exact_ray's to
-!> refine_tol (tests/test_dsm_fast.py).
+!> its assumptions do not hold: a slab longer than fast_maxlen, a latitude or
+!> longitude widening above fast_maxdv cells (near the poles, huge spans), a
+!> ray that meets no data over the slab but has to look for the first low
+!> point outside the DSM (the LEFT_DSM search), or its segment limit. So
+!> correctness never depends on its coverage; the statuses and distances equal
+!> exact_ray's to refine_tol (tests/test_dsm_fast.py).
 module pi_dsm_fast
   use pi_kinds, only: dp
   use pi_status
@@ -500,7 +503,7 @@ contains
     type(piece_t) :: pc
     type(xpt_t) :: xc, xd
     type(lpt_t) :: pa, pb, pm, stack(fast_depth)
-    real(dp) :: lat, lon, h, dh, hs, hlow, hb, r, g, dr, hc, rsplit, rm, rstar, rc
+    real(dp) :: dh, hs, hlow, hb, r, g, dr, hc, rsplit, rm, rstar, rc
     logical :: found, pok
     integer :: code, nst, it, cell, sub, cst
     outcome = out_declined
