@@ -223,6 +223,7 @@ contains
     sv = max(abs(h10 - h00), abs(h11 - h01))               ! |dH/dv|
     m = su * pc%du + sv * pc%dv + 1.0e-13_dp * (abs(h00) + abs(h01) + abs(h10) + abs(h11)) + pc%hmarg
     len = pb%r - pa%r
+    if (.not. (len > 0.0_dp)) return
     fa = pa%u - j
     fb = pa%v - i
     al = (pb%u - pa%u) / len
@@ -231,6 +232,7 @@ contains
     a0 = h00 + (h01 - h00) * fa + (h10 - h00) * fb + c * fa * fb + m
     a1 = (h01 - h00) * al + (h10 - h00) * be + c * (fa * be + fb * al)
     a2 = c * al * be
+    if (.not. (abs(a0) + abs(a1) + abs(a2) < huge(1.0_dp))) return   ! not finite: leave it to the halving
     ! the tangents' kink in t (tangent A is the larger before it, B after)
     tk = huge(1.0_dp)
     if (pc%a%dh < pc%b%dh) tk = (pc%b%h - pc%a%h + pc%a%dh * pc%a%r - pc%b%dh * pc%b%r) / (pc%a%dh - pc%b%dh) &
