@@ -404,7 +404,7 @@ contains
     type(dsm_ray_t), intent(inout) :: res
     logical, intent(out) :: ok
     type(xpt_t) :: x_in, x_end, xa, xb
-    real(dp) :: r_in, r_end, r_far, lat, lon, h, dh, hs, rnext, hb
+    real(dp) :: r_in, r_end, r_far, lat, lon, h, dh, hs, rnext, hb, rho, lp
     logical :: found, out
     integer :: code, k, npc, outcome, nseg
     ok = .true.
@@ -458,7 +458,13 @@ contains
       return
     end if
     ! ---- 2. pieces in ray order, each searched depth-first on cheap points
-    npc = max(1, ceiling((r_end - r_in) / (fast_piece * dsm%a)))
+    ! piece length: at least fast_piece, longer on coarse grids, where the
+    ! widenings psi''L^2/8 (|psi''| ~ 3/M_min^2) and L^2/(4 rho^2) stay near 0.01 cells
+    ! (only speed depends on it: make_piece computes the bounds and declines above fast_maxdv)
+    rho = axis_distance(s, l, r_in, r_end)
+    lp = max(fast_piece * dsm%a, min(sqrt(0.08_dp * abs(dsm%dlat) / 3.0_dp) * dsm%a * (1.0_dp - dsm%e2), &
+                                     sqrt(0.04_dp * dsm%dlon) * rho))
+    npc = max(1, ceiling(min((r_end - r_in) / lp, 1.0e6_dp)))
     xb = x_in
     nseg = 0
     do k = 1, npc

@@ -13,6 +13,10 @@ the fast path answers.
 
 from __future__ import annotations
 
+import gzip
+import os
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -157,3 +161,30 @@ def test_mars_and_threads():
     st2, r2, _ = trace(dsm, s, l, EXACT, threads=2)
     np.testing.assert_array_equal(st1, st2)
     np.testing.assert_array_equal(r1, r2)                      # bit-identical for any thread count
+
+
+SHARED = Path(os.environ.get("PI_SHARED_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "data"))
+ETOPO = SHARED / "earth_etopo20"
+
+
+@pytest.mark.skipif(not (ETOPO / "etopo20data.gz").exists(), reason=f"{ETOPO}: ETOPO20 grid not available")
+@pytest.mark.parametrize("interp", ["bilinear", "nearest"])
+def test_etopo20_global(interp):
+    """Real data: the global ETOPO20 grid (20', 1080 columns covering 360 deg, heights from
+    -10 km to +6 km: slabs ~16 km long, cells ~37 km), rays from 500-700 km, 0-30 deg off nadir."""
+    with gzip.open(ETOPO / "etopo20data.gz", "rt") as fh:
+        z = np.loadtxt(fh)[:, :1080]
+    with gzip.open(ETOPO / "etopo20lats.gz", "rt") as fh:
+        lats = np.loadtxt(fh)
+    with gzip.open(ETOPO / "etopo20lons.gz", "rt") as fh:
+        lons = np.loadtxt(fh)
+    dsm = pi.GeodeticDSM.from_array(z, float(lats[0]), float(lons[0]), float(lats[1] - lats[0]),
+                                    float(lons[1] - lons[0]), interpolation=interp)
+    rng = np.random.default_rng(7)
+    n = 3000
+    lat = np.degrees(np.arcsin(rng.uniform(-0.97, 0.97, n)))
+    lon = rng.uniform(-180, 180, n)
+    s, l = _patch_rays(lat, lon, n, 20, zen=(0.0, 30.0), height=(500e3, 700e3))
+    frac, counts, n_ref, n_ex = compare(dsm, s, l, min_fast=0.98)
+    assert counts.get(HIT, 0) >= 2900
+    assert n_ex < 0.8 * n_ref          # the pieces grow with the cells: fewer conversions on coarse grids too
