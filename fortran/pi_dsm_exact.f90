@@ -33,16 +33,23 @@ module pi_dsm_exact
   use pi_follow, only: dsm_ray_t, follow_ray, iterate_ray, ray_geo, level_crossing, level_crossing_back, &
                        set_hit, set_event, refine_tol
   use pi_geodetic, only: ecr_to_geodetic
+  use pi_dsm_fast, only: fast_ray
   use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan, ieee_is_finite, ieee_is_nan
   !$ use omp_lib, only: omp_get_max_threads
   implicit none
   private
 
   public :: exact_ray, dsm_trace_packed, dsm_method_following, dsm_method_exact, dsm_method_iterative, &
-            exact_maxseg
+            dsm_method_exact_reference, dsm_method_exact_fast_only, ray_fast_declined, exact_maxseg
 
-  !> method codes of dsm_trace_packed
-  integer, parameter :: dsm_method_following = 0, dsm_method_exact = 1, dsm_method_iterative = 2
+  !> method codes of dsm_trace_packed: the three public methods, and two internal
+  !> ones for tests: exact_reference = exact_ray alone (no fast path),
+  !> exact_fast_only = the fast path alone (status ray_fast_declined where it
+  !> declines)
+  integer, parameter :: dsm_method_following = 0, dsm_method_exact = 1, dsm_method_iterative = 2, &
+                        dsm_method_exact_reference = 3, dsm_method_exact_fast_only = 4
+  !> status of method exact_fast_only where the fast path declined (internal, tests only)
+  integer, parameter :: ray_fast_declined = 99
   !> segment limit per ray (then ray_step_limit) and subdivision stack depth
   integer, parameter :: exact_maxseg = 200000, exact_depth = 128
 
@@ -371,7 +378,9 @@ contains
   !> Outputs: p(3, n) hit points, q(3, n) event points; scal(10, n) = lat, lon,
   !> h, H, r, incidence (hits; radians), qlat, qlon, qh, qr (events), NaN
   !> where not set; status(n) ray_* codes; nsteps(n). stat: stat_bad_mode for
-  !> an unknown method.
+  !> an unknown method. method: 0 following, 1 exact (pi_dsm_fast's fast path,
+  !> exact_ray where it declines), 2 iterative; internal (tests): 3 exact_ray
+  !> alone, 4 the fast path alone (ray_fast_declined where it declines).
   subroutine dsm_trace_packed(dsm, n, s, l, method, threads, p, q, scal, status, nsteps, stat)
     type(dsm_t), intent(in) :: dsm
     integer, intent(in) :: n, method, threads
@@ -383,7 +392,7 @@ contains
     nan = ieee_value(1.0_dp, ieee_quiet_nan)
     p = nan; q = nan; scal = nan; status = ray_bad_direction; nsteps = 0
     stat = stat_ok
-    if (method < 0 .or. method > 2) then
+    if (method < 0 .or. method > 4) then
       stat = stat_bad_mode
       return
     end if
@@ -403,7 +412,8 @@ contains
       integer, intent(in) :: k
       type(dsm_ray_t) :: res
       real(dp) :: ln, lu(3), lat, lon, h, hs, dh
-      integer :: code
+      integer :: code, nfast
+      logical :: ok
       res%p = nan; res%lat = nan; res%lon = nan; res%h = nan; res%hs = nan; res%r = nan
       res%incidence = nan; res%q = nan; res%qlat = nan; res%qlon = nan; res%qh = nan; res%qr = nan
       res%nsteps = 0
@@ -414,14 +424,30 @@ contains
         res%status = ray_bad_position
       else
         lu = l(:, k) / ln
-        call ray_geo(dsm, s(:, k), lu, 0.0_dp, lat, lon, h, dh)
-        call dsm_height(dsm, lat, lon, hs, code)
+        ! s outside the sphere |P| = a + H_max (h > H_max there) cannot be inside: skip the conversion
+        code = pt_outside
+        h = 0.0_dp
+        hs = 0.0_dp
+        if (.not. (dot_product(s(:, k), s(:, k)) > (dsm%a + max(dsm%hmax, 0.0_dp) + 1.0e-9_dp * dsm%a)**2)) then
+          call ray_geo(dsm, s(:, k), lu, 0.0_dp, lat, lon, h, dh)
+          call dsm_height(dsm, lat, lon, hs, code)
+        end if
         if (code == pt_ok .and. h <= hs) then
           res%status = ray_inside
         else if (method == dsm_method_following) then
           call follow_ray(dsm, s(:, k), lu, res)
         else if (method == dsm_method_exact) then
+          call fast_ray(dsm, s(:, k), lu, res, ok)          ! the fast path, exact_ray where it declines
+          if (.not. ok) then
+            nfast = res%nsteps
+            call exact_ray(dsm, s(:, k), lu, res)
+            res%nsteps = res%nsteps + nfast
+          end if
+        else if (method == dsm_method_exact_reference) then
           call exact_ray(dsm, s(:, k), lu, res)
+        else if (method == dsm_method_exact_fast_only) then
+          call fast_ray(dsm, s(:, k), lu, res, ok)
+          if (.not. ok) res%status = ray_fast_declined
         else
           call iterate_ray(dsm, s(:, k), lu, res)
         end if

@@ -1,0 +1,726 @@
+!> Fast path of the exact DSM mode (method "exact"): the same answer as
+!> pi_dsm_exact's exact_ray (the contract of docs/dsm-contract.md, to
+!> refine_tol along the ray), with far fewer exact geodetic conversions
+!> (docs/shin-park-notes.md, "Fast exact path").
+!>
+!> exact_ray converts every point of its depth-first subdivision (~0.3 us
+!> each). Here the subdivision runs on cheap points whose bounds stay rigorous:
+!>  * height: h(r) is convex along the line, so the tangents at the exact end
+!>    points of a piece are lower bounds everywhere; a segment's lowest height
+!>    is bounded by the larger of the two tangents (no conversion);
+!>  * longitude: linear between the piece's exact ends, widened by L^2/(4 rho^2)
+!>    (rho^2 lambda' is constant along a line, so |lambda''| <= 2/rho^2);
+!>  * latitude: linear between the exact ends, widened by psi''max L^2 / 8 with
+!>    |psi''| <= kap/den + (|dM/dpsi|/den + 1)/den^2 (psi' = (l.north)/(M + h);
+!>    |d(l.north)/dr| <= kap = 1/den + 1/rho as in pi_dsm_exact; |l.north| <= 1,
+!>    |h'| <= 1; den = M_min + min(h_low, 0), rho the piece's axis distance).
+!> The slab [r_in, r_end] (first crossings of H_max and H_min) is cut into
+!> pieces of at most fast_piece (units of a) with exact ends. A segment that
+!> cannot be ruled out has its start moved past the prefix where a falling
+!> tangent is still above the box's surface bound; one of at most fast_sub
+!> becomes a sub-piece with exact ends (tangent bound within ~1e-7 m of h),
+!> where a "nearest" cell is solved by Newton and a bilinear cell's candidate
+!> entry in closed form (a quadratic), then classified by one conversion.
+!>
+!> The fast path declines (ok = .false.; the caller then runs exact_ray) when
+!> its assumptions do not hold: a slab longer than fast_maxlen, a latitude or
+!> longitude widening above fast_maxdv cells (near the poles, huge spans), a
+!> ray that meets no data over the slab but has to look for the first low
+!> point outside the DSM (the LEFT_DSM search), or its segment limit. So
+!> correctness never depends on its coverage; the statuses and distances equal
+!> exact_ray's to refine_tol (tests/test_dsm_fast.py).
+module pi_dsm_fast
+  use pi_kinds, only: dp
+  use pi_status
+  use pi_vector, only: pi
+  use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, pt_ok, pt_nodata
+  use pi_follow, only: dsm_ray_t, ray_geo, level_crossing_back, ellipsoid_entry, set_hit, set_event, refine_tol
+  use pi_geodetic, only: ecr_to_geodetic_nb
+  use, intrinsic :: ieee_arithmetic, only: ieee_is_nan
+  implicit none
+  private
+
+  public :: fast_ray, fast_piece, fast_sub, fast_maxlen, fast_maxdv
+
+  !> longest piece with one linear latitude model (units of a: ~640 m on Earth;
+  !> its widening there is ~0.004 m on the ground)
+  real(dp), parameter :: fast_piece = 1.0e-4_dp
+  !> longest slab the fast path takes (units of a: ~64 km on Earth)
+  real(dp), parameter :: fast_maxlen = 1.0e-2_dp
+  !> largest latitude widening (grid rows) the fast path accepts
+  real(dp), parameter :: fast_maxdv = 0.25_dp
+  !> longest candidate segment searched as a piece of its own (units of a: ~1.9 m on Earth)
+  real(dp), parameter :: fast_sub = 3.0e-7_dp
+  !> rounding margins of the bounds: the exact conversion's height (relative
+  !> to a; its Newton stops at a step of 1e-15 (|t| + a^2), then rounding of a
+  !> few ulps of a) and latitude (radians; atan2 of the foot-point gradient)
+  real(dp), parameter :: fast_hmarg = 1.0e-14_dp, fast_latmarg = 1.0e-14_dp
+  !> segment limit per ray and subdivision stack depth
+  integer, parameter :: fast_maxseg = 20000, fast_depth = 128
+  !> outcomes of a piece search
+  integer, parameter :: out_clear = 0, out_decided = 1, out_declined = 2
+
+  !> an exact ray point: r, geodetic lat, lon, h, dh/dr, grid u, v
+  type :: xpt_t
+    real(dp) :: r, lat, lon, h, dh, u, v
+  end type xpt_t
+
+  !> a cheap ray point: r, grid u (exact to rounding), v of the linear latitude model
+  type :: lpt_t
+    real(dp) :: r, u, v
+  end type lpt_t
+
+  !> a piece [A, B]: its exact ends and the latitude widening dv (grid rows)
+  type :: piece_t
+    type(xpt_t) :: a, b
+    real(dp) :: dv, du, hmarg
+  end type piece_t
+
+contains
+
+  !> Exact ray point at r (one conversion).
+  pure subroutine eval_x(dsm, s, l, r, q)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3), r
+    type(xpt_t), intent(out) :: q
+    real(dp) :: p(3), nx, ny, nz
+    p = s + r * l                                           ! Shin & Park eq. 1
+    call ecr_to_geodetic_nb(p(1), p(2), p(3), dsm%a, dsm%f, q%lat, q%lon, q%h, nx, ny, nz)
+    q%dh = l(1) * nx + l(2) * ny + l(3) * nz                ! dh/dr = l . n
+    q%r = r
+    call dsm_grid_uv(dsm, q%lat, q%lon, q%u, q%v)
+  end subroutine eval_x
+
+  !> Cheap ray point at r on piece pc: u and v of the linear models.
+  pure subroutine eval_l(pc, r, q)
+    type(piece_t), intent(in) :: pc
+    real(dp), intent(in) :: r
+    type(lpt_t), intent(out) :: q
+    real(dp) :: w
+    w = (r - pc%a%r) / (pc%b%r - pc%a%r)
+    q%u = pc%a%u + w * (pc%b%u - pc%a%u)
+    q%v = pc%a%v + w * (pc%b%v - pc%a%v)
+    q%r = r
+  end subroutine eval_l
+
+  !> Cheap point of an exact one.
+  pure function to_l(x) result(q)
+    type(xpt_t), intent(in) :: x
+    type(lpt_t) :: q
+    q%r = x%r
+    q%u = x%u
+    q%v = x%v
+  end function to_l
+
+  !> Lower bound of h on [ra, rb] from the tangents at the piece's exact ends
+  !> (convexity: each tangent is below h everywhere; their maximum is convex
+  !> and piecewise linear, so its minimum is at an end or at the kink).
+  pure function h_lower(pc, ra, rb) result(hlow)
+    type(piece_t), intent(in) :: pc
+    real(dp), intent(in) :: ra, rb
+    real(dp) :: hlow, rk, den
+    hlow = min(tmax(ra), tmax(rb))
+    den = pc%a%dh - pc%b%dh
+    if (den < 0.0_dp) then                                  ! the tangents cross
+      rk = (pc%b%h - pc%a%h + pc%a%dh * pc%a%r - pc%b%dh * pc%b%r) / den
+      if (rk > ra .and. rk < rb) hlow = min(hlow, tmax(rk))
+    end if
+    hlow = hlow - pc%hmarg - 1.0e-13_dp * abs(hlow)
+  contains
+    pure function tmax(r) result(t)
+      real(dp), intent(in) :: r
+      real(dp) :: t
+      t = max(pc%a%h + pc%a%dh * (r - pc%a%r), pc%b%h + pc%b%dh * (r - pc%b%r))
+    end function tmax
+  end function h_lower
+
+  !> End of the clear prefix from r0: the largest r where a falling tangent of
+  !> the piece is still above hb (with h_lower's margins), less 1e-3 refine_tol
+  !> for rounding; h >= that tangent > hb on [r0, rc]. rc = r0 when none.
+  pure function clear_prefix(pc, r0, hb) result(rc)
+    type(piece_t), intent(in) :: pc
+    real(dp), intent(in) :: r0, hb
+    real(dp) :: rc, lev
+    lev = hb + pc%hmarg + 1.0e-13_dp * (abs(hb) + abs(pc%a%h) + abs(pc%b%h))
+    rc = r0
+    if (pc%a%dh < 0.0_dp) rc = max(rc, pc%a%r + (lev - pc%a%h) / pc%a%dh - 1.0e-3_dp * refine_tol)
+    if (pc%b%dh < 0.0_dp) rc = max(rc, pc%b%r + (lev - pc%b%h) / pc%b%dh - 1.0e-3_dp * refine_tol)
+  end function clear_prefix
+
+  !> Bounds of the segment [pa, pb] of piece pc (as pi_dsm_exact's
+  !> segment_bounds): hlow <= h on it, hb >= the surface over its box (+huge
+  !> unknown or no-data), cell >= 0 when the box is one "nearest" cell, rsplit
+  !> the estimated crossing of the one cell boundary it straddles (0: none).
+  pure subroutine seg_bounds(dsm, pc, pa, pb, hlow, hb, cell, rsplit)
+    type(dsm_t), intent(in) :: dsm
+    type(piece_t), intent(in) :: pc
+    type(lpt_t), intent(in) :: pa, pb
+    real(dp), intent(out) :: hlow, hb, rsplit
+    integer, intent(out) :: cell
+    real(dp) :: v0, v1, u0, u1, du, t
+    integer :: ci0, ci1, cj0, cj1
+    logical :: out
+    hlow = h_lower(pc, pa%r, pb%r)
+    cell = -1
+    rsplit = 0.0_dp
+    v0 = min(pa%v, pb%v) - pc%dv
+    v1 = max(pa%v, pb%v) + pc%dv
+    u0 = min(pa%u, pb%u) - pc%du
+    u1 = max(pa%u, pb%u) + pc%du
+    du = pb%u - pa%u
+    call dsm_box_bound(dsm, u0, u1, v0, v1, hb, out)
+    if (dsm%interp == interp_nearest .and. .not. out .and. .not. dsm%global .and. hb < huge(1.0_dp)) then
+      ci0 = ceiling(v0 - 0.5_dp); ci1 = floor(v1 + 0.5_dp)
+      cj0 = ceiling(u0 - 0.5_dp); cj1 = floor(u1 + 0.5_dp)
+      if (ci0 == ci1 .and. cj0 == cj1) then
+        cell = 1
+      else if (ci1 - ci0 + cj1 - cj0 == 1) then
+        ! one wall between: split just before its estimated crossing (only speed depends on it)
+        if (cj1 > cj0) then
+          t = (cj0 + 0.5_dp - pa%u) / du
+        else
+          t = (ci0 + 0.5_dp - pa%v) / (pb%v - pa%v)
+        end if
+        if (t > 0.0_dp .and. t < 1.0_dp) rsplit = pa%r + t * (pb%r - pa%r)
+      end if
+    end if
+  end subroutine seg_bounds
+
+  !> Within one bilinear cell with data at its four nodes: the first r in
+  !> [pa, pb] where the lower bound of h (the larger tangent, a line on each
+  !> side of the tangents' kink) meets an upper bound of the surface (the
+  !> bilinear along the linear (u, v) models, a quadratic in r, plus the
+  !> models' widening times the surface's slopes and a rounding margin).
+  !> st = 0: not one bilinear cell with data (not used); 1: h stays above the
+  !> surface on [pa, pb]; 2: no entry before rstar (the candidate).
+  pure subroutine cell_solve(dsm, pc, pa, pb, st, rstar)
+    type(dsm_t), intent(in) :: dsm
+    type(piece_t), intent(in) :: pc
+    type(lpt_t), intent(in) :: pa, pb
+    integer, intent(out) :: st
+    real(dp), intent(out) :: rstar
+    real(dp) :: v0, v1, u0, u1, h00, h01, h10, h11, c, su, sv, m, fa, fb, al, be, len
+    real(dp) :: a0, a1, a2, tk, ta, tb, troot
+    integer :: i, j, side
+    st = 0
+    rstar = pb%r
+    if (dsm%interp == interp_nearest) return
+    v0 = min(pa%v, pb%v) - pc%dv
+    v1 = max(pa%v, pb%v) + pc%dv
+    u0 = min(pa%u, pb%u) - pc%du
+    u1 = max(pa%u, pb%u) + pc%du
+    if (.not. (v0 >= 0.0_dp .and. u0 >= 0.0_dp .and. v1 <= dsm%nrows - 1 .and. u1 <= dsm%ncols - 1)) return
+    i = min(int(v0), dsm%nrows - 2)
+    j = min(int(u0), dsm%ncols - 2)
+    if (v1 > i + 1 .or. u1 > j + 1) return
+    h00 = dsm%hgt(j + 1, i + 1)
+    h01 = dsm%hgt(j + 2, i + 1)
+    h10 = dsm%hgt(j + 1, i + 2)
+    h11 = dsm%hgt(j + 2, i + 2)
+    if (ieee_is_nan(h00) .or. ieee_is_nan(h01) .or. ieee_is_nan(h10) .or. ieee_is_nan(h11)) return
+    c = h00 - h01 - h10 + h11
+    su = max(abs(h01 - h00), abs(h11 - h10))               ! |dH/du| in the cell
+    sv = max(abs(h10 - h00), abs(h11 - h01))               ! |dH/dv|
+    m = su * pc%du + sv * pc%dv + 1.0e-13_dp * (abs(h00) + abs(h01) + abs(h10) + abs(h11)) + pc%hmarg
+    len = pb%r - pa%r
+    if (.not. (len > 0.0_dp)) return
+    fa = pa%u - j
+    fb = pa%v - i
+    al = (pb%u - pa%u) / len
+    be = (pb%v - pa%v) / len
+    ! upper bound of the surface U(t) = a0 + a1 t + a2 t^2, t = r - pa%r (bilinear of the linear models)
+    a0 = h00 + (h01 - h00) * fa + (h10 - h00) * fb + c * fa * fb + m
+    a1 = (h01 - h00) * al + (h10 - h00) * be + c * (fa * be + fb * al)
+    a2 = c * al * be
+    if (.not. (abs(a0) + abs(a1) + abs(a2) < huge(1.0_dp))) return   ! not finite: leave it to the halving
+    ! the tangents' kink in t (tangent A is the larger before it, B after)
+    tk = huge(1.0_dp)
+    if (pc%a%dh < pc%b%dh) tk = (pc%b%h - pc%a%h + pc%a%dh * pc%a%r - pc%b%dh * pc%b%r) / (pc%a%dh - pc%b%dh) &
+                                - pa%r
+    st = 1
+    do side = 1, 2
+      if (side == 1) then
+        ta = 0.0_dp
+        tb = min(len, tk)
+        if (.not. (tb >= ta)) cycle
+        call first_root(tangent(pc%a, pa%r) - a0, pc%a%dh - a1, -a2, ta, tb, troot)
+      else
+        ta = max(0.0_dp, min(tk, len))
+        tb = len
+        call first_root(tangent(pc%b, pa%r) - a0, pc%b%dh - a1, -a2, ta, tb, troot)
+      end if
+      if (troot <= tb) then
+        st = 2
+        rstar = pa%r + max(ta, troot - 1.0e-12_dp * abs(troot) - 1.0e-3_dp * refine_tol)
+        return
+      end if
+    end do
+  contains
+    !> the tangent at x evaluated at r0 (its value at t = 0), less the rounding margins
+    pure function tangent(x, r0) result(v)
+      type(xpt_t), intent(in) :: x
+      real(dp), intent(in) :: r0
+      real(dp) :: v
+      v = x%h + x%dh * (r0 - x%r)
+      v = v - 1.0e-13_dp * abs(v)
+    end function tangent
+  end subroutine cell_solve
+
+  !> Smallest t in [ta, tb] with e0 + e1 t + e2 t^2 <= 0 (tb + 1 when none).
+  pure subroutine first_root(e0, e1, e2, ta, tb, t)
+    real(dp), intent(in) :: e0, e1, e2, ta, tb
+    real(dp), intent(out) :: t
+    real(dp) :: disc, q, r1, r2, w
+    t = tb + 1.0_dp
+    if (e0 + ta * (e1 + ta * e2) <= 0.0_dp) then
+      t = ta
+      return
+    end if
+    if (e2 == 0.0_dp) then
+      if (e1 < 0.0_dp) then
+        r1 = -e0 / e1
+        if (r1 >= ta .and. r1 <= tb) t = r1
+      end if
+      return
+    end if
+    disc = e1 * e1 - 4.0_dp * e2 * e0
+    if (.not. (disc >= 0.0_dp)) return
+    q = -0.5_dp * (e1 + sign(sqrt(disc), e1))
+    if (q == 0.0_dp) return
+    r1 = q / e2
+    r2 = e0 / q
+    if (r1 > r2) then
+      w = r1; r1 = r2; r2 = w
+    end if
+    ! the polynomial is positive at ta: the first root after ta is where it turns <= 0
+    if (r1 > ta .and. r1 <= tb) then
+      t = r1
+    else if (r2 > ta .and. r2 <= tb) then
+      t = r2
+    end if
+  end subroutine first_root
+
+  !> First r >= r0 with h(r) <= level, as pi_follow's level_crossing (Newton
+  !> from the left on the convex h - level, started on the raised ellipsoid),
+  !> returning the exact point x there (r within 1e-9 before the crossing).
+  !> It stops without the confirming step: after a Newton step of length d
+  !> from a point with slope dh < 0, h'' <= c = 1/(M_min + min(level, 0)) puts
+  !> the crossing within c d^2 / |dh| after the new point (when that is below
+  !> 0.4 d). neval counts conversions.
+  pure subroutine fast_crossing(dsm, s, l, r0, level, x, found, neval)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3), r0, level
+    type(xpt_t), intent(out) :: x
+    logical, intent(out) :: found
+    integer, intent(inout) :: neval
+    real(dp) :: r, rg, c, d, eps, den
+    logical :: hit, have
+    integer :: it
+    found = .false.
+    have = .false.
+    r = r0
+    den = dsm%a * (1.0_dp - dsm%e2) + min(level, 0.0_dp)
+    c = huge(1.0_dp)
+    if (den > 0.0_dp) c = 1.0_dp / den
+    if (level > -0.5_dp * dsm%b) then
+      rg = level + 1.0e-9_dp * dsm%a + dsm%e2**2 * abs(level) / 8.0_dp
+      call ellipsoid_entry(dsm%a + rg, dsm%b + rg, s, l, rg, hit)
+      if (hit .and. rg > r0) then
+        call eval_x(dsm, s, l, rg, x)
+        neval = neval + 1
+        if (x%h - level > 0.0_dp .and. x%dh < 0.0_dp) then
+          r = rg
+          have = .true.
+        end if
+      end if
+    end if
+    do it = 1, 300
+      if (.not. have) then
+        call eval_x(dsm, s, l, r, x)
+        neval = neval + 1
+      end if
+      have = .false.
+      if (x%h - level <= 0.0_dp) then
+        found = .true.
+        return
+      end if
+      if (.not. (x%dh < 0.0_dp)) return                ! rising or NaN: never reaches the level
+      d = -(x%h - level) / x%dh
+      r = r + d
+      if (d <= 1.0e-9_dp) then
+        found = .true.
+        call eval_x(dsm, s, l, r, x)
+        neval = neval + 1
+        return
+      end if
+      eps = c * d * d / (-x%dh)
+      if (eps <= 1.0e-9_dp .and. eps <= 0.4_dp * d) then
+        found = .true.
+        call eval_x(dsm, s, l, r, x)
+        neval = neval + 1
+        return
+      end if
+    end do
+  end subroutine fast_crossing
+
+  !> Build piece [xa, xb]: its latitude widening in grid rows (ok = .false.
+  !> when the bound does not apply or exceeds fast_maxdv).
+  pure subroutine make_piece(dsm, s, l, xa, xb, pc, ok)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3)
+    type(xpt_t), intent(in) :: xa, xb
+    type(piece_t), intent(out) :: pc
+    logical, intent(out) :: ok
+    real(dp) :: mmin, den, rho, kap, cm, psi2, len
+    pc%a = xa
+    pc%b = xb
+    pc%dv = huge(1.0_dp)
+    pc%hmarg = fast_hmarg * dsm%a
+    ok = .false.
+    len = xb%r - xa%r
+    if (.not. (len > 0.0_dp)) return
+    mmin = dsm%a * (1.0_dp - dsm%e2)                         ! smallest meridian radius of curvature
+    den = mmin + min(h_lower(pc, xa%r, xb%r), 0.0_dp)
+    if (.not. (den > 0.5_dp * mmin)) return
+    rho = axis_distance(s, l, xa%r, xb%r)
+    if (.not. (rho > 1.0e-3_dp * dsm%a)) return
+    kap = 1.0_dp / den + 1.0_dp / rho                        ! |d(l.north)/dr|
+    cm = 1.5_dp * dsm%e2 * dsm%a / (1.0_dp - dsm%e2)**1.5_dp  ! |dM/dpsi|
+    psi2 = kap / den + (cm / den + 1.0_dp) / den**2          ! |psi''|
+    ! interpolation error psi2 L^2 / 8 and rounding of the exact latitudes
+    pc%dv = (0.125_dp * psi2 * len * len + fast_latmarg * (1.0_dp + abs(xa%lat) + abs(xb%lat))) / abs(dsm%dlat)
+    ! longitude along a line: rho^2 lambda' is constant, so |lambda''| = 2 |lambda' rho'| / rho <= 2 / rho^2;
+    ! linear interpolation error <= L^2 / (4 rho^2)
+    pc%du = (0.25_dp * (len / rho)**2 + fast_latmarg * (1.0_dp + pi)) / dsm%dlon
+    ok = pc%dv <= fast_maxdv .and. pc%du <= fast_maxdv .and. abs(xb%u - xa%u) < 0.25_dp * pi / dsm%dlon
+  end subroutine make_piece
+
+  !> The exact mode's answer for one ray (l unit, s above the surface), or
+  !> ok = .false. (res%nsteps counts its conversions; nothing else is set)
+  !> when the fast path declines and exact_ray must be run.
+  pure subroutine fast_ray(dsm, s, l, res, ok)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3)
+    type(dsm_ray_t), intent(inout) :: res
+    logical, intent(out) :: ok
+    type(xpt_t) :: x_in, x_end, xa, xb
+    real(dp) :: r_in, r_end, r_far, lat, lon, h, dh, hs, rnext, hb, rho, lp
+    logical :: found, out
+    integer :: code, k, npc, outcome, nseg
+    ok = .true.
+    res%nsteps = 0
+    ! ---- 1. the search interval (as exact_ray, with the crossings' end points kept)
+    if (dot_product(s, s) > (dsm%a + max(dsm%hmax, 0.0_dp) + 1.0e-9_dp * dsm%a)**2) then
+      h = huge(1.0_dp)                                   ! outside the sphere |P| = a + H_max: h > H_max
+    else
+      call ray_geo(dsm, s, l, 0.0_dp, lat, lon, h, dh)
+      res%nsteps = 1
+    end if
+    if (h <= dsm%hmax) then
+      call eval_x(dsm, s, l, 0.0_dp, x_in)
+      res%nsteps = res%nsteps + 1
+    else
+      call fast_crossing(dsm, s, l, 0.0_dp, dsm%hmax, x_in, found, res%nsteps)
+      if (.not. found) then
+        res%status = ray_dsm_miss
+        return
+      end if
+    end if
+    r_in = x_in%r
+    call fast_crossing(dsm, s, l, r_in, dsm%hmin, x_end, found, res%nsteps)
+    if (.not. found) then
+      r_far = far_distance(s, l, dsm%a + max(dsm%hmax, 0.0_dp) + 1.0_dp)
+      call level_crossing_back(dsm, s, l, max(r_far, r_in), dsm%hmax, r_end, found, res%nsteps)
+      if (.not. found) r_end = r_in
+      r_end = max(r_end, r_in)
+      call eval_x(dsm, s, l, r_end, x_end)
+      res%nsteps = res%nsteps + 1
+    end if
+    r_end = x_end%r
+    ! ---- the start point itself (a box bound below its height over data settles it without the lookup)
+    call dsm_box_bound(dsm, x_in%u - 1.0e-9_dp, x_in%u + 1.0e-9_dp, x_in%v - 1.0e-9_dp, x_in%v + 1.0e-9_dp, hb, out)
+    if (hb < x_in%h .and. .not. out) then
+      code = pt_ok
+      hs = hb
+    else
+      call dsm_height(dsm, x_in%lat, x_in%lon, hs, code)
+    end if
+    if (code == pt_nodata) then
+      call set_event(dsm, s, l, r_in, ray_no_data, res)
+      return
+    end if
+    if (code == pt_ok .and. x_in%h <= hs) then
+      call set_hit(dsm, s, l, r_in, ray_hit, res)
+      return
+    end if
+    if (.not. (r_end - r_in <= fast_maxlen * dsm%a)) then
+      ok = .false.
+      return
+    end if
+    ! ---- 2. pieces in ray order, each searched depth-first on cheap points
+    ! piece length: at least fast_piece, longer on coarse grids, where the
+    ! widenings psi''L^2/8 (|psi''| ~ 3/M_min^2) and L^2/(4 rho^2) stay near 0.01 cells
+    ! (only speed depends on it: make_piece computes the bounds and declines above fast_maxdv)
+    rho = axis_distance(s, l, r_in, r_end)
+    lp = max(fast_piece * dsm%a, min(sqrt(0.08_dp * abs(dsm%dlat) / 3.0_dp) * dsm%a * (1.0_dp - dsm%e2), &
+                                     sqrt(0.04_dp * dsm%dlon) * rho))
+    npc = max(1, ceiling(min((r_end - r_in) / lp, 1.0e6_dp)))
+    xb = x_in
+    nseg = 0
+    do k = 1, npc
+      xa = xb
+      if (k == npc) then
+        xb = x_end
+      else
+        rnext = r_in + (r_end - r_in) * (real(k, dp) / npc)
+        call eval_x(dsm, s, l, rnext, xb)
+        res%nsteps = res%nsteps + 1
+      end if
+      if (.not. (xb%r > xa%r)) cycle
+      call search_piece(dsm, s, l, xa, xb, 1, res, outcome, nseg)
+      if (outcome == out_decided) return
+      if (outcome == out_declined) then
+        ok = .false.
+        return
+      end if
+    end do
+    ! ---- the interval is clear up to r_end: the end point decides (as exact_ray)
+    call dsm_height(dsm, x_end%lat, x_end%lon, hs, code)
+    if (code == pt_ok .and. x_end%h <= hs + 1.0e-12_dp * dsm%a + 1.0e-9_dp * abs(hs)) then
+      call set_hit(dsm, s, l, r_end, ray_hit, res)
+      return
+    end if
+    ! ---- no hit, no no-data: the search for the first low point outside is exact_ray's
+    ok = .false.
+  end subroutine fast_ray
+
+  !> Depth-first search of the piece [xa, xb] (exact ends) for the first hit or
+  !> no-data point, in ray order, on cheap points. At level 1 a segment that
+  !> cannot be ruled out and is at most fast_sub long is searched as a piece of
+  !> its own (level 2: exact ends, so its tangent bound is within
+  !> fast_sub^2 / (8 M_min) of h). outcome: out_clear (nothing on the piece),
+  !> out_decided (res holds the hit or no-data event), out_declined.
+  recursive pure subroutine search_piece(dsm, s, l, xa, xb, level, res, outcome, nseg)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3)
+    type(xpt_t), intent(in) :: xa, xb
+    integer, intent(in) :: level
+    type(dsm_ray_t), intent(inout) :: res
+    integer, intent(out) :: outcome
+    integer, intent(inout) :: nseg
+    type(piece_t) :: pc
+    type(xpt_t) :: xc, xd
+    type(lpt_t) :: pa, pb, pm, stack(fast_depth)
+    real(dp) :: dh, hs, hlow, hb, r, g, dr, hc, rsplit, rm, rstar, rc
+    logical :: found, pok
+    integer :: code, nst, it, cell, sub, cst
+    outcome = out_declined
+    call make_piece(dsm, s, l, xa, xb, pc, pok)
+    if (.not. pok) return
+    pa = to_l(xa)
+    pb = to_l(xb)
+    nst = 0
+    do
+      nseg = nseg + 1
+      if (nseg > fast_maxseg) then
+        outcome = out_declined
+        return
+      end if
+      call seg_bounds(dsm, pc, pa, pb, hlow, hb, cell, rsplit)
+      if (hlow > hb) then                                 ! nothing to meet in this segment
+        call next_segment(pa, pb, stack, nst)
+        if (nst < 0) exit
+        cycle
+      end if
+      if (hb < huge(1.0_dp)) then
+        ! the prefix where a falling tangent is still above the box's surface bound is clear:
+        ! move the start there (a cheap step toward the first candidate, DDA-like)
+        rc = clear_prefix(pc, pa%r, hb)
+        if (rc >= pb%r) then
+          call next_segment(pa, pb, stack, nst)
+          if (nst < 0) exit
+          cycle
+        end if
+        if (rc - pa%r > 0.01_dp * (pb%r - pa%r)) then
+          call eval_l(pc, rc, pa)
+          cycle
+        end if
+      end if
+      if (level == 2) then                                ! one bilinear cell: the candidate in closed form
+        call cell_solve(dsm, pc, pa, pb, cst, rstar)
+        if (cst == 1) then
+          call next_segment(pa, pb, stack, nst)
+          if (nst < 0) exit
+          cycle
+        else if (cst == 2) then
+          ! no entry before rstar: classify rstar + tol/2 (a leaf of length tol/2)
+          r = min(rstar + 0.5_dp * refine_tol, pb%r)
+          call eval_x(dsm, s, l, r, xc)
+          res%nsteps = res%nsteps + 1
+          call dsm_height(dsm, xc%lat, xc%lon, hs, code)
+          if (code == pt_nodata) then
+            call set_event(dsm, s, l, r, ray_no_data, res)
+            outcome = out_decided
+            return
+          else if (code == pt_ok .and. xc%h <= hs) then
+            call fast_hit(s, l, xc, hs, res)
+            outcome = out_decided
+            return
+          end if
+          if (r >= pb%r) then
+            call next_segment(pa, pb, stack, nst)
+            if (nst < 0) exit
+          else
+            call eval_l(pc, r, pa)                        ! [pa, r] is clear; go on from r
+          end if
+          cycle
+        end if
+      end if
+      if (cell >= 0) then                                 ! one nearest cell: Newton on h - H_cell
+        hc = hb
+        r = pa%r
+        call eval_x(dsm, s, l, r, xc)
+        res%nsteps = res%nsteps + 1
+        g = xc%h - hc
+        dh = xc%dh
+        found = .false.
+        do it = 1, 100
+          if (g <= 0.0_dp) then
+            found = .true.
+            exit
+          end if
+          if (.not. (dh < 0.0_dp)) exit                   ! rising: convex h never comes back down
+          dr = -g / dh
+          r = r + dr
+          if (r > pb%r) exit                              ! the first root lies beyond the segment
+          if (dr <= 1.0e-9_dp) then
+            found = .true.
+            exit
+          end if
+          call eval_x(dsm, s, l, r, xc)
+          res%nsteps = res%nsteps + 1
+          g = xc%h - hc
+          dh = xc%dh
+        end do
+        if (found) then
+          if (xc%r /= r) then                             ! the last step was below 1e-9: convert there
+            call eval_x(dsm, s, l, r, xc)
+            res%nsteps = res%nsteps + 1
+          end if
+          call dsm_height(dsm, xc%lat, xc%lon, hs, code)  ! the contract's H there (walls: the larger)
+          call fast_hit(s, l, xc, hs, res)
+          outcome = out_decided
+          return
+        end if
+        if (it <= 100) then
+          call next_segment(pa, pb, stack, nst)
+          if (nst < 0) exit
+          cycle
+        end if
+      end if
+      if (pb%r - pa%r <= refine_tol) then                 ! a short segment: classify its end exactly
+        call eval_x(dsm, s, l, pb%r, xc)
+        res%nsteps = res%nsteps + 1
+        call dsm_height(dsm, xc%lat, xc%lon, hs, code)
+        if (code == pt_nodata) then
+          call set_event(dsm, s, l, pb%r, ray_no_data, res)
+          outcome = out_decided
+          return
+        else if (code == pt_ok .and. xc%h <= hs) then
+          call fast_hit(s, l, xc, hs, res)
+          outcome = out_decided
+          return
+        end if
+        call next_segment(pa, pb, stack, nst)
+        if (nst < 0) exit
+        cycle
+      end if
+      if (level == 1 .and. pb%r - pa%r <= fast_sub * dsm%a) then   ! a short candidate: its own piece
+        call eval_x(dsm, s, l, pa%r, xc)
+        call eval_x(dsm, s, l, pb%r, xd)
+        res%nsteps = res%nsteps + 2
+        call search_piece(dsm, s, l, xc, xd, 2, res, sub, nseg)
+        if (sub /= out_clear) then
+          outcome = sub
+          return
+        end if
+        call next_segment(pa, pb, stack, nst)
+        if (nst < 0) exit
+        cycle
+      end if
+      if (nst >= fast_depth) then
+        outcome = out_declined
+        return
+      end if
+      rm = 0.5_dp * (pa%r + pb%r)
+      if (rsplit > 0.0_dp) then
+        if (rsplit - 0.25_dp * refine_tol > pa%r + 0.125_dp * refine_tol) then
+          rm = rsplit - 0.25_dp * refine_tol
+        else if (rsplit + 0.25_dp * refine_tol < pb%r - 0.125_dp * refine_tol) then
+          rm = rsplit + 0.25_dp * refine_tol
+        end if
+      end if
+      call eval_l(pc, rm, pm)
+      nst = nst + 1
+      stack(nst) = pb
+      pb = pm
+    end do
+    outcome = out_clear
+  end subroutine search_piece
+
+  !> Fill res as a hit at the exact point x, where the surface height hs was
+  !> found (as pi_follow's set_hit, without converting and looking up again).
+  pure subroutine fast_hit(s, l, x, hs, res)
+    real(dp), intent(in) :: s(3), l(3), hs
+    type(xpt_t), intent(in) :: x
+    type(dsm_ray_t), intent(inout) :: res
+    res%status = ray_hit
+    res%r = x%r
+    res%p = s + x%r * l
+    res%lat = x%lat
+    res%lon = x%lon
+    res%h = x%h
+    res%hs = hs
+    res%incidence = acos(max(-1.0_dp, min(1.0_dp, -x%dh)))   ! from the normal: 0 = looking straight down
+  end subroutine fast_hit
+
+  !> Move on to the next pending segment [pb, top of the stack]; nst = -1 when none is left.
+  pure subroutine next_segment(pa, pb, stack, nst)
+    type(lpt_t), intent(inout) :: pa, pb
+    type(lpt_t), intent(in) :: stack(:)
+    integer, intent(inout) :: nst
+    pa = pb
+    if (nst == 0) then
+      nst = -1
+      return
+    end if
+    pb = stack(nst)
+    nst = nst - 1
+  end subroutine next_segment
+
+  !> Smallest distance from the z axis of the points s + r l, r in [r0, r1].
+  pure function axis_distance(s, l, r0, r1) result(d)
+    real(dp), intent(in) :: s(3), l(3), r0, r1
+    real(dp) :: d, ll, rr
+    ll = l(1)**2 + l(2)**2
+    if (ll > 0.0_dp) then
+      rr = -(s(1) * l(1) + s(2) * l(2)) / ll
+    else
+      rr = r0
+    end if
+    rr = min(max(rr, r0), r1)
+    d = sqrt((s(1) + rr * l(1))**2 + (s(2) + rr * l(2))**2)
+  end function axis_distance
+
+  !> Distance along the ray to where it leaves the sphere of radius rad (0 if never inside).
+  pure function far_distance(s, l, rad) result(r)
+    real(dp), intent(in) :: s(3), l(3), rad
+    real(dp) :: r, b, c, disc
+    b = dot_product(s, l)
+    c = dot_product(s, s) - rad * rad
+    disc = b * b - c
+    r = 0.0_dp
+    if (disc > 0.0_dp) r = max(0.0_dp, -b + sqrt(disc))
+  end function far_distance
+
+end module pi_dsm_fast

@@ -1,0 +1,190 @@
+"""Fast path of the exact DSM mode (fortran/pi_dsm_fast.f90) against the
+exact mode's reference search (pi_dsm_exact's exact_ray, itself checked
+against the exhaustive reference in test_dsm_references.py).
+
+The core's dsm_trace takes two internal method codes for this: 3 runs
+exact_ray alone (the reference), 4 runs the fast path alone (status 99 where
+it declines and ``method="exact"`` falls back to exact_ray). Each scene
+asserts, ray by ray, that ``method="exact"`` (fast path + fallback) and the
+fast path alone (where it answers) give exact_ray's status and its distance
+to 1e-6 m (hits and no-data / left-the-DSM events), and the fraction of rays
+the fast path answers.
+"""
+
+from __future__ import annotations
+
+import gzip
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import planet_intersect as pi
+from planet_intersect import _core
+from planet_intersect import synthetic_dsm as sd
+from planet_intersect.geodetic import geodetic_to_ecef
+
+EXACT, REFERENCE, FAST_ONLY, DECLINED = 1, 3, 4, 99
+TOL_R = 1e-6     # m: the contract's tolerance along the ray
+HIT, NO_DATA, LEFT_DSM, MISS = (int(pi.DSMStatus.HIT), int(pi.DSMStatus.NO_DATA), int(pi.DSMStatus.LEFT_DSM),
+                                int(pi.DSMStatus.MISS)) if hasattr(pi, "DSMStatus") else (0, 9, 10, 11)
+
+
+def trace(dsm, s, l, method, threads=1):
+    """The core's trace with a method code; returns (status, r of the hit or event, nsteps)."""
+    s = np.ascontiguousarray(np.atleast_2d(s), dtype=np.float64)
+    l = np.atleast_2d(l).astype(np.float64)
+    l = np.ascontiguousarray(l / np.linalg.norm(l, axis=1, keepdims=True))
+    pyr, meta = dsm.pyramid()
+    g = dsm._core_grid()
+    p, q, scal, status, nsteps, stat = _core.core_dsm_trace(*g[:7], g[7], dsm.hmax, dsm.hmin, pyr, meta.T,
+                                                           s.T, l.T, method, threads)
+    assert stat == 0
+    r = np.where(np.isfinite(scal[4]), scal[4], scal[9])
+    return status, r, nsteps
+
+
+def compare(dsm, s, l, min_fast):
+    """Assert fast == reference per ray; return (fraction answered by the fast path, status counts)."""
+    st_ref, r_ref, n_ref = trace(dsm, s, l, REFERENCE)
+    st_ex, r_ex, n_ex = trace(dsm, s, l, EXACT)
+    st_f, r_f, _ = trace(dsm, s, l, FAST_ONLY)
+    bad = np.flatnonzero(st_ex != st_ref)
+    assert bad.size == 0, f"{bad.size} status differences, first ray {bad[:5]}: {st_ex[bad[:5]]} vs {st_ref[bad[:5]]}"
+    fin = np.isfinite(r_ref)
+    np.testing.assert_array_equal(np.isfinite(r_ex), fin)
+    dr = np.abs(r_ex[fin] - r_ref[fin])
+    assert dr.max(initial=0.0) <= TOL_R, f"max |dr| = {dr.max():.3g} m"
+    took = st_f != DECLINED
+    np.testing.assert_array_equal(st_f[took], st_ref[took])
+    np.testing.assert_array_equal(r_f[took], r_ex[took])           # method 1 uses the fast answer as is
+    frac = float(took.mean())
+    assert frac >= min_fast, f"fast path answered {frac:.3f} of the rays"
+    counts = {int(k): int(v) for k, v in zip(*np.unique(st_ref, return_counts=True))}
+    return frac, counts, float(n_ref.mean()), float(n_ex.mean())
+
+
+@pytest.fixture(scope="module")
+def city():
+    g = sd.building_scene(n=256, seed=5)
+    g.pop("roof_id")
+    return g
+
+
+@pytest.mark.parametrize("interp", ["bilinear", "nearest"])
+def test_pushbroom_city(city, interp):
+    dsm = pi.GeodeticDSM.from_array(city["heights"], city["lat_first"], city["lon_first"], city["dlat"],
+                                    city["dlon"], interpolation=interp)
+    s, l = sd.pushbroom_rays(city, 3000, seed=8)
+    frac, counts, n_ref, n_ex = compare(dsm, s, l, min_fast=0.98)
+    assert counts.get(HIT, 0) >= 2900
+    assert n_ex < 0.5 * n_ref          # fewer exact conversions than the reference search
+
+
+@pytest.mark.parametrize("interp", ["bilinear", "nearest"])
+def test_airborne_and_grazing(city, interp):
+    dsm = pi.GeodeticDSM.from_array(city["heights"], city["lat_first"], city["lon_first"], city["dlat"],
+                                    city["dlon"], interpolation=interp)
+    s1, l1 = sd.airborne_rays(city, 1500, seed=9)
+    # grazing: 0.5-3 deg above the horizon, 100-400 m up (long slabs, several pieces)
+    s2, l2 = sd.airborne_rays(city, 1500, altitude=(100.0, 400.0), elevation=(0.5, 3.0), seed=10, margin=0.45)
+    s, l = np.vstack([s1, s2]), np.vstack([l1, l2])
+    frac, counts, _, _ = compare(dsm, s, l, min_fast=0.95)
+    assert counts.get(HIT, 0) >= 2900
+
+
+@pytest.mark.parametrize("interp", ["bilinear", "nearest"])
+def test_nodata_and_edges(city, interp):
+    h = city["heights"].copy()
+    rng = np.random.default_rng(12)
+    for _ in range(40):                                        # no-data holes of 1-20 cells
+        i, j = rng.integers(0, 240, 2)
+        w, d = rng.integers(1, 21, 2)
+        h[i:i + d, j:j + w] = np.nan
+    dsm = pi.GeodeticDSM.from_array(h, city["lat_first"], city["lon_first"], city["dlat"], city["dlon"],
+                                    interpolation=interp)
+    s1, l1 = sd.pushbroom_rays(city, 2000, seed=13, margin=0.0)
+    # aimed near and beyond the edges: the ray leaves or never enters while low
+    s2, l2 = sd.pushbroom_rays(city, 1000, seed=14, margin=-0.05)
+    s, l = np.vstack([s1, s2]), np.vstack([l1, l2])
+    frac, counts, _, _ = compare(dsm, s, l, min_fast=0.9)   # LEFT_DSM rays are exact_ray's
+    assert counts.get(NO_DATA, 0) >= 50 and counts.get(HIT, 0) >= 1500 and counts.get(LEFT_DSM, 0) >= 10
+
+
+def _patch_rays(lat, lon, n, seed, zen=(0.0, 40.0), height=(5e3, 700e3)):
+    rng = np.random.default_rng(seed)
+    target = geodetic_to_ecef(lat, lon, np.zeros(n))
+    return sd._from_above(target, lat, lon, rng.uniform(*height, n), rng.uniform(*zen, n),
+                          rng.uniform(0, 2 * np.pi, n))
+
+
+@pytest.mark.parametrize("interp", ["bilinear", "nearest"])
+def test_antimeridian_and_poles(interp):
+    rng = np.random.default_rng(15)
+    # 0.01 deg cells (~1 km) of rough terrain across the antimeridian
+    h = rng.uniform(0.0, 800.0, (60, 80))
+    dsm = pi.GeodeticDSM.from_array(h, -0.3, 179.6, 0.01, 0.01, interpolation=interp)
+    lat = rng.uniform(-0.28, 0.28, 1500)
+    lon = 179.62 + rng.uniform(0.0, 0.76, 1500)
+    s, l = _patch_rays(lat, lon, 1500, 16)
+    frac, counts, _, _ = compare(dsm, s, l, min_fast=0.9)
+    assert counts.get(HIT, 0) >= 1300
+    # near the north pole: 1e-4 deg rows up to 89.99 deg; the fast path declines where its
+    # latitude bound is too wide (close to the axis), exact_ray answers
+    hp = rng.uniform(0.0, 50.0, (100, 100))
+    dsmp = pi.GeodeticDSM.from_array(hp, 89.98, 10.0, 1e-4, 1e-3, interpolation=interp)
+    lat = rng.uniform(89.981, 89.989, 1000)
+    lon = rng.uniform(10.01, 10.09, 1000)
+    s, l = _patch_rays(lat, lon, 1000, 17, height=(2e3, 600e3))
+    frac_p, counts_p, _, _ = compare(dsmp, s, l, min_fast=0.0)
+    assert counts_p.get(HIT, 0) >= 900
+
+
+def test_mars_and_threads():
+    rng = np.random.default_rng(18)
+    a, f = 3396190.0, 1 / 169.894
+    h = rng.uniform(-2000.0, 2000.0, (120, 120))
+    dsm = pi.GeodeticDSM.from_array(h, -30.0, 40.0, 0.002, 0.002, a=a, f=f)
+    lat = rng.uniform(-29.95, -29.77, 2000)
+    lon = rng.uniform(40.02, 40.22, 2000)
+    rng2 = np.random.default_rng(19)
+    la, lo = np.radians(lat), np.radians(lon)
+    target = geodetic_to_ecef(lat, lon, np.zeros(2000), a, f)
+    up = np.stack([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)], axis=1)
+    tilt = rng2.normal(0, 0.2, (2000, 3))
+    d = up + tilt - (np.einsum("ij,ij->i", tilt, up))[:, None] * up
+    s, l = target + 300e3 * d, -d
+    frac, counts, _, _ = compare(dsm, s, l, min_fast=0.95)
+    assert counts.get(HIT, 0) >= 1800
+    st1, r1, _ = trace(dsm, s, l, EXACT, threads=1)
+    st2, r2, _ = trace(dsm, s, l, EXACT, threads=2)
+    np.testing.assert_array_equal(st1, st2)
+    np.testing.assert_array_equal(r1, r2)                      # bit-identical for any thread count
+
+
+SHARED = Path(os.environ.get("PI_SHARED_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "data"))
+ETOPO = SHARED / "earth_etopo20"
+
+
+@pytest.mark.skipif(not (ETOPO / "etopo20data.gz").exists(), reason=f"{ETOPO}: ETOPO20 grid not available")
+@pytest.mark.parametrize("interp", ["bilinear", "nearest"])
+def test_etopo20_global(interp):
+    """Real data: the global ETOPO20 grid (20', 1080 columns covering 360 deg, heights from
+    -10 km to +6 km: slabs ~16 km long, cells ~37 km), rays from 500-700 km, 0-30 deg off nadir."""
+    with gzip.open(ETOPO / "etopo20data.gz", "rt") as fh:
+        z = np.loadtxt(fh)[:, :1080]
+    with gzip.open(ETOPO / "etopo20lats.gz", "rt") as fh:
+        lats = np.loadtxt(fh)
+    with gzip.open(ETOPO / "etopo20lons.gz", "rt") as fh:
+        lons = np.loadtxt(fh)
+    dsm = pi.GeodeticDSM.from_array(z, float(lats[0]), float(lons[0]), float(lats[1] - lats[0]),
+                                    float(lons[1] - lons[0]), interpolation=interp)
+    rng = np.random.default_rng(7)
+    n = 3000
+    lat = np.degrees(np.arcsin(rng.uniform(-0.97, 0.97, n)))
+    lon = rng.uniform(-180, 180, n)
+    s, l = _patch_rays(lat, lon, n, 20, zen=(0.0, 30.0), height=(500e3, 700e3))
+    frac, counts, n_ref, n_ex = compare(dsm, s, l, min_fast=0.98)
+    assert counts.get(HIT, 0) >= 2900
+    assert n_ex < 0.8 * n_ref          # the pieces grow with the cells: fewer conversions on coarse grids too
