@@ -20,7 +20,7 @@
 module pi_dsm
   use pi_kinds, only: dp
   use pi_vector, only: pi
-  use, intrinsic :: ieee_arithmetic, only: ieee_is_nan
+  use pi_ieee, only: ieee_is_nan => is_nan, nan_dp
   implicit none
   private
 
@@ -333,9 +333,8 @@ contains
   end subroutine dsm_cell_metres
 
   pure function ieee_nan() result(x)
-    use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
     real(dp) :: x
-    x = ieee_value(1.0_dp, ieee_quiet_nan)
+    x = nan_dp
   end function ieee_nan
 
 end module pi_dsm

@@ -34,7 +34,7 @@ module pi_dsm_exact
                        set_hit, set_event, refine_tol
   use pi_geodetic, only: ecr_to_geodetic
   use pi_dsm_fast, only: fast_ray
-  use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan, ieee_is_finite, ieee_is_nan
+  use pi_ieee, only: nan_dp, ieee_is_finite => is_finite, ieee_is_nan => is_nan
   !$ use omp_lib, only: omp_get_max_threads
   implicit none
   private
@@ -389,7 +389,7 @@ contains
     integer, intent(out) :: status(n), nsteps(n), stat
     integer :: k, nt
     real(dp) :: nan
-    nan = ieee_value(1.0_dp, ieee_quiet_nan)
+    nan = nan_dp
     p = nan; q = nan; scal = nan; status = ray_bad_direction; nsteps = 0
     stat = stat_ok
     if (method < 0 .or. method > 4) then

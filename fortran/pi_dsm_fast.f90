@@ -36,7 +36,7 @@ module pi_dsm_fast
   use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, pt_ok, pt_nodata
   use pi_follow, only: dsm_ray_t, ray_geo, level_crossing_back, ellipsoid_entry, set_hit, set_event, refine_tol
   use pi_geodetic, only: ecr_to_geodetic_nb
-  use, intrinsic :: ieee_arithmetic, only: ieee_is_nan
+  use pi_ieee, only: ieee_is_nan => is_nan
   implicit none
   private
 

@@ -15,7 +15,6 @@ module pi_follow
   use pi_status
   use pi_dsm, only: dsm_t, dsm_height, dsm_cell_metres, pt_ok, pt_outside, pt_nodata
   use pi_geodetic, only: ecr_to_geodetic, ecr_to_geodetic_bowring
-  use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
   implicit none
   private
 

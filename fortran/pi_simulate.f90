@@ -14,7 +14,7 @@ module pi_simulate
   use pi_kinds, only: dp
   use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, interp_nearest, pt_ok
   use pi_vector, only: pi
-  use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan, ieee_is_finite
+  use pi_ieee, only: nan_dp, ieee_is_finite => is_finite
   !$ use omp_lib, only: omp_get_max_threads
   implicit none
   private
@@ -66,7 +66,7 @@ contains
     end if
     u = (lat - o%lat0) / o%dlat                     ! row
     if (.not. (u >= 0.0_dp .and. u <= o%nrows - 1 .and. v >= 0.0_dp .and. v <= o%ncols - 1)) then
-      val = ieee_value(0.0_dp, ieee_quiet_nan)
+      val = nan_dp
       return
     end if
     i = min(int(u), max(o%nrows - 2, 0))
@@ -88,7 +88,7 @@ contains
     nc = size(g, 1)
     nr = size(g, 2)
     if (.not. (v >= 0.0_dp .and. v <= nr - 1 .and. u >= 0.0_dp .and. u <= nc - 1)) then
-      val = ieee_value(0.0_dp, ieee_quiet_nan)
+      val = nan_dp
       return
     end if
     i = min(int(v), max(nr - 2, 0))
@@ -177,7 +177,7 @@ contains
       if (hit(k) /= 1) then
         val(:, k) = opt%fill
         kind(k) = kind_none
-        locinc(k) = ieee_value(0.0_dp, ieee_quiet_nan)
+        locinc(k) = nan_dp
       else
         call shade_one(dsm, gnd, o, opt, lat(k), lon(k), h(k), hsurf(k), l(:, k), val(:, k), kind(k), locinc(k))
       end if
