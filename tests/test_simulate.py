@@ -409,3 +409,29 @@ def test_cli_simulate_from_projected_geotiffs(tmp_path, capsys):
     # roofs show the roof's colour, but for a rim: the ortho is warped bilinearly, the DSM by
     # nearest neighbour, so their edges do not coincide to the pixel
     assert np.mean(np.abs(img[roof][:, 0] - 220) < 1) > 0.8
+
+
+def test_footprint_polygon_fill_equals_a_point_in_polygon_test():
+    """The scanline fill behind ``footprint`` against matplotlib's
+    point-in-polygon test (every grid point against every edge), on convex,
+    star-shaped and self-intersecting polygons."""
+    from matplotlib.path import Path as MPath
+
+    from planet_intersect.simulate import _fill_polygon
+
+    rng = np.random.default_rng(0)
+    uu, vv = np.meshgrid(np.arange(40), np.arange(50), indexing="ij")
+    pts = np.column_stack([uu.ravel(), vv.ravel()])
+    total = 0
+    for trial in range(300):
+        n = int(rng.integers(3, 40))
+        ang = np.sort(rng.uniform(0, 2 * np.pi, n))
+        r = rng.uniform(3, 20, n) if trial % 2 else np.full(n, 15.0)
+        pu, pv = 20 + r * np.sin(ang) + rng.uniform(-0.3, 0.3), 25 + r * np.cos(ang)
+        if trial % 3 == 0:
+            pu, pv = rng.uniform(-5, 45, n), rng.uniform(-5, 55, n)
+        mask = _fill_polygon(pu, pv, 40, 50)
+        ref = MPath(np.column_stack([pu, pv])).contains_points(pts).reshape(40, 50)
+        np.testing.assert_array_equal(mask, ref, err_msg=f"polygon {trial}")
+        total += ref.sum()
+    assert total > 50000

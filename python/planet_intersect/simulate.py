@@ -633,6 +633,43 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
     return sim
 
 
+def _fill_polygon(pu, pv, nrows: int, ncols: int) -> np.ndarray:
+    """Grid points (row i, col j), 0 <= i < nrows, 0 <= j < ncols, inside the
+    closed polygon of vertices (pu, pv) in fractional (row, col), by scanlines
+    and the even-odd rule: O(vertices + area), where a point-in-polygon test of
+    every point against every edge is O(vertices x area)."""
+    ua, va = pu, pv
+    ub, vb = np.roll(pu, -1), np.roll(pv, -1)
+    lo, hi = np.minimum(ua, ub), np.maximum(ua, ub)
+    # rows r with lo <= r < hi (half-open: a vertex on a row counts once)
+    r0 = np.ceil(lo).astype(np.int64)
+    r1 = np.ceil(hi).astype(np.int64)                  # exclusive
+    r0, r1 = np.clip(r0, 0, nrows), np.clip(r1, 0, nrows)
+    count = np.maximum(r1 - r0, 0)
+    inside = np.zeros((nrows, ncols), dtype=bool)
+    if count.sum() == 0:
+        return inside
+    e = np.repeat(np.arange(len(ua)), count)
+    rows = r0[e] + (np.arange(len(e)) - np.repeat(np.cumsum(count) - count, count))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        x = va[e] + (rows - ua[e]) * (vb[e] - va[e]) / (ub[e] - ua[e])
+    order = np.lexsort((x, rows))
+    rows, x = rows[order], x[order]
+    # pair the crossings of each row: (1st, 2nd), (3rd, 4th), ...
+    starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]])
+    rank = np.arange(len(rows)) - np.repeat(starts, np.diff(np.r_[starts, len(rows)]))
+    first = rank % 2 == 0
+    has_pair = np.r_[first[:-1] & (rows[1:] == rows[:-1]), False]
+    a = np.flatnonzero(first & has_pair)
+    c0 = np.clip(np.ceil(x[a]).astype(np.int64), 0, ncols)
+    c1 = np.clip(np.floor(x[a + 1]).astype(np.int64) + 1, 0, ncols)
+    ok = c1 > c0
+    diff = np.zeros((nrows, ncols + 1), dtype=np.int32)
+    np.add.at(diff, (rows[a][ok], c0[ok]), 1)
+    np.add.at(diff, (rows[a][ok], c1[ok]), -1)
+    return np.cumsum(diff[:, :ncols], axis=1) > 0
+
+
 def _occlusion(dsm: GeodeticDSM, ortho: OrthoImage, sensor, sim: SimResult, threads):
     """Ortho-grid masks: ``footprint`` (inside the polygon of the image border's
     hits) and ``occlusion`` (footprint pixels whose surface point is hidden).
@@ -643,7 +680,6 @@ def _occlusion(dsm: GeodeticDSM, ortho: OrthoImage, sensor, sim: SimResult, thre
     hidden when the ray meets the surface more than 1 cm before X. For a
     pushbroom the true line differs by a fraction of a line, a direction
     change of ~1e-7 rad at 700 km."""
-    from matplotlib.path import Path as MPath
     from scipy import ndimage
 
     from .dsm import intersect_dsm
@@ -665,13 +701,11 @@ def _occlusion(dsm: GeodeticDSM, ortho: OrthoImage, sensor, sim: SimResult, thre
     if keep.sum() < 3:
         return occ, foot
     bu, bv = ortho.grid_coords(lat[bk, bm][keep], lon[bk, bm][keep])
-    poly = MPath(np.column_stack([bu, bv]))
     u0, u1 = max(0, int(np.floor(bu.min()))), min(nr - 1, int(np.ceil(bu.max())))
     v0, v1 = max(0, int(np.floor(bv.min()))), min(nc - 1, int(np.ceil(bv.max())))
     if u1 < u0 or v1 < v0:
         return occ, foot
-    uu, vv = np.meshgrid(np.arange(u0, u1 + 1), np.arange(v0, v1 + 1), indexing="ij")
-    inside = poly.contains_points(np.column_stack([uu.ravel(), vv.ravel()])).reshape(uu.shape)
+    inside = _fill_polygon(bu - u0, bv - v0, u1 - u0 + 1, v1 - v0 + 1)
     foot[u0:u1 + 1, v0:v1 + 1] = inside
     # which image line saw each ortho pixel: the hits binned to the nearest pixel
     line_of = np.full((u1 - u0 + 1, v1 - v0 + 1), -1, dtype=np.int64)
