@@ -91,6 +91,24 @@ contains
     call dsm_grid_uv(dsm, q%lat, q%lon, q%u, q%v)
   end subroutine eval_x
 
+  !> Exact ray point at r, reusing the piece's exact end when r is one of
+  !> them (the same conversion: bit-identical); n counts conversions made.
+  pure subroutine eval_p(dsm, s, l, pc, r, q, n)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3), r
+    type(piece_t), intent(in) :: pc
+    type(xpt_t), intent(out) :: q
+    integer, intent(inout) :: n
+    if (r == pc%a%r) then
+      q = pc%a
+    else if (r == pc%b%r) then
+      q = pc%b
+    else
+      call eval_x(dsm, s, l, r, q)
+      n = n + 1
+    end if
+  end subroutine eval_p
+
   !> Cheap ray point at r on piece pc: u and v of the linear models.
   pure subroutine eval_l(pc, r, q)
     type(piece_t), intent(in) :: pc
@@ -555,8 +573,7 @@ contains
         else if (cst == 2) then
           ! no entry before rstar: classify rstar + tol/2 (a leaf of length tol/2)
           r = min(rstar + 0.5_dp * refine_tol, pb%r)
-          call eval_x(dsm, s, l, r, xc)
-          res%nsteps = res%nsteps + 1
+          call eval_p(dsm, s, l, pc, r, xc, res%nsteps)
           call dsm_height(dsm, xc%lat, xc%lon, hs, code)
           if (code == pt_nodata) then
             call set_event(dsm, s, l, r, ray_no_data, res)
@@ -579,8 +596,7 @@ contains
       if (cell >= 0) then                                 ! one nearest cell: Newton on h - H_cell
         hc = hb
         r = pa%r
-        call eval_x(dsm, s, l, r, xc)
-        res%nsteps = res%nsteps + 1
+        call eval_p(dsm, s, l, pc, r, xc, res%nsteps)
         g = xc%h - hc
         dh = xc%dh
         found = .false.
@@ -619,8 +635,7 @@ contains
         end if
       end if
       if (pb%r - pa%r <= refine_tol) then                 ! a short segment: classify its end exactly
-        call eval_x(dsm, s, l, pb%r, xc)
-        res%nsteps = res%nsteps + 1
+        call eval_p(dsm, s, l, pc, pb%r, xc, res%nsteps)
         call dsm_height(dsm, xc%lat, xc%lon, hs, code)
         if (code == pt_nodata) then
           call set_event(dsm, s, l, pb%r, ray_no_data, res)
@@ -636,9 +651,8 @@ contains
         cycle
       end if
       if (level == 1 .and. pb%r - pa%r <= fast_sub * dsm%a) then   ! a short candidate: its own piece
-        call eval_x(dsm, s, l, pa%r, xc)
-        call eval_x(dsm, s, l, pb%r, xd)
-        res%nsteps = res%nsteps + 2
+        call eval_p(dsm, s, l, pc, pa%r, xc, res%nsteps)
+        call eval_p(dsm, s, l, pc, pb%r, xd, res%nsteps)
         call search_piece(dsm, s, l, xc, xd, 2, res, sub, nseg)
         if (sub /= out_clear) then
           outcome = sub
