@@ -381,6 +381,44 @@ contains
     end do
   end subroutine fast_crossing
 
+  !> The slab's entry at level (H_max) from r = 0 with one conversion where it
+  !> can: the point x on the raised ellipsoid (before the crossing, h > level,
+  !> falling) and rs = x%r + d, d the Newton step from x: the crossing lies in
+  !> [rs, rs + c d^2 / |dh|] (c as in fast_crossing) and is accepted when that
+  !> is <= 1e-9 (so h(rs) >= level, and rs is within 1e-9 before the crossing,
+  !> as fast_crossing's end point). Otherwise fast_crossing (then x%r = rs).
+  pure subroutine fast_entry(dsm, s, l, level, x, rs, found, neval)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3), level
+    type(xpt_t), intent(out) :: x
+    real(dp), intent(out) :: rs
+    logical, intent(out) :: found
+    integer, intent(inout) :: neval
+    real(dp) :: rg, c, d, eps, den
+    logical :: hit
+    if (level > -0.5_dp * dsm%b) then
+      den = dsm%a * (1.0_dp - dsm%e2) + min(level, 0.0_dp)
+      rg = level + 1.0e-9_dp * dsm%a + dsm%e2**2 * abs(level) / 8.0_dp
+      call ellipsoid_entry(dsm%a + rg, dsm%b + rg, s, l, rg, hit)
+      if (hit .and. rg > 0.0_dp .and. den > 0.0_dp) then
+        call eval_x(dsm, s, l, rg, x)
+        neval = neval + 1
+        if (x%h - level > 0.0_dp .and. x%dh < 0.0_dp) then
+          d = -(x%h - level) / x%dh
+          c = 1.0_dp / den
+          eps = c * d * d / (-x%dh)
+          if (eps <= 1.0e-9_dp .and. eps <= 0.4_dp * d) then
+            found = .true.
+            rs = rg + d
+            return
+          end if
+        end if
+      end if
+    end if
+    call fast_crossing(dsm, s, l, 0.0_dp, level, x, found, neval)
+    rs = x%r
+  end subroutine fast_entry
+
   !> Build piece [xa, xb]: its latitude widening in grid rows (ok = .false.
   !> when the bound does not apply or exceeds fast_maxdv).
   pure subroutine make_piece(dsm, s, l, xa, xb, pc, ok)
@@ -422,7 +460,7 @@ contains
     type(dsm_ray_t), intent(inout) :: res
     logical, intent(out) :: ok
     type(xpt_t) :: x_in, x_end, xa, xb
-    real(dp) :: r_in, r_end, r_far, lat, lon, h, dh, hs, rnext, hb, rho, lp
+    real(dp) :: r_in, r_end, r_far, lat, lon, h, dh, hs, rnext, hb, rho, lp, dr, den, gu, gv
     logical :: found, out
     integer :: code, k, npc, outcome, nseg
     ok = .true.
@@ -437,14 +475,15 @@ contains
     if (h <= dsm%hmax) then
       call eval_x(dsm, s, l, 0.0_dp, x_in)
       res%nsteps = res%nsteps + 1
+      r_in = 0.0_dp
     else
-      call fast_crossing(dsm, s, l, 0.0_dp, dsm%hmax, x_in, found, res%nsteps)
+      ! x_in exact at or (by ~1e-9 a) before r_in, the search's start
+      call fast_entry(dsm, s, l, dsm%hmax, x_in, r_in, found, res%nsteps)
       if (.not. found) then
         res%status = ray_dsm_miss
         return
       end if
     end if
-    r_in = x_in%r
     call fast_crossing(dsm, s, l, r_in, dsm%hmin, x_end, found, res%nsteps)
     if (.not. found) then
       r_far = far_distance(s, l, dsm%a + max(dsm%hmax, 0.0_dp) + 1.0_dp)
@@ -456,12 +495,40 @@ contains
     end if
     r_end = x_end%r
     ! ---- the start point itself (a box bound below its height over data settles it without the lookup)
-    call dsm_box_bound(dsm, x_in%u - 1.0e-9_dp, x_in%u + 1.0e-9_dp, x_in%v - 1.0e-9_dp, x_in%v + 1.0e-9_dp, hb, out)
-    if (hb < x_in%h .and. .not. out) then
-      code = pt_ok
+    if (x_in%r < r_in) then
+      ! x_in is before the start: the box of all points within dr of x_in, dr = r_in - x_in%r
+      ! (|dlat/dr| <= 1/den, |dlon/dr| <= 1/rho), where h >= h(r_in) >= H_max (the tangent at x_in)
+      dr = 2.0_dp * (r_in - x_in%r) + 1.0e-9_dp * dsm%a
+      rho = axis_distance(s, l, x_in%r, r_in + dr)
+      den = dsm%a * (1.0_dp - dsm%e2) + min(dsm%hmin, 0.0_dp)
+      gv = 1.0e-9_dp + fast_latmarg * (1.0_dp + abs(x_in%lat)) / abs(dsm%dlat)
+      gu = 1.0e-9_dp + fast_latmarg * (1.0_dp + pi) / dsm%dlon
+      if (rho > 0.0_dp .and. den > 0.0_dp) then
+        gv = gv + dr / (den * abs(dsm%dlat))
+        gu = gu + dr / (rho * dsm%dlon)
+      else
+        gv = huge(1.0_dp)
+      end if
+      hb = huge(1.0_dp)
+      out = .true.
+      if (gu < 1.0_dp .and. gv < 1.0_dp) &
+        call dsm_box_bound(dsm, x_in%u - gu, x_in%u + gu, x_in%v - gv, x_in%v + gv, hb, out)
+      if (.not. (hb < dsm%hmax - fast_hmarg * dsm%a - 1.0e-13_dp * abs(dsm%hmax) .and. .not. out)) then
+        call eval_x(dsm, s, l, r_in, x_in)               ! not settled: the start point exactly
+        res%nsteps = res%nsteps + 1
+      end if
+    end if
+    if (x_in%r < r_in) then
+      code = pt_ok                                       ! settled above: no hit, no no-data there
       hs = hb
     else
-      call dsm_height(dsm, x_in%lat, x_in%lon, hs, code)
+      call dsm_box_bound(dsm, x_in%u - 1.0e-9_dp, x_in%u + 1.0e-9_dp, x_in%v - 1.0e-9_dp, x_in%v + 1.0e-9_dp, hb, out)
+      if (hb < x_in%h .and. .not. out) then
+        code = pt_ok
+        hs = hb
+      else
+        call dsm_height(dsm, x_in%lat, x_in%lon, hs, code)
+      end if
     end if
     if (code == pt_nodata) then
       call set_event(dsm, s, l, r_in, ray_no_data, res)
@@ -495,7 +562,7 @@ contains
         res%nsteps = res%nsteps + 1
       end if
       if (.not. (xb%r > xa%r)) cycle
-      call search_piece(dsm, s, l, xa, xb, 1, res, outcome, nseg)
+      call search_piece(dsm, s, l, xa, xb, max(r_in, xa%r), 1, res, outcome, nseg)
       if (outcome == out_decided) return
       if (outcome == out_declined) then
         ok = .false.
@@ -518,9 +585,11 @@ contains
   !> its own (level 2: exact ends, so its tangent bound is within
   !> fast_sub^2 / (8 M_min) of h). outcome: out_clear (nothing on the piece),
   !> out_decided (res holds the hit or no-data event), out_declined.
-  recursive pure subroutine search_piece(dsm, s, l, xa, xb, level, res, outcome, nseg)
+  recursive pure subroutine search_piece(dsm, s, l, xa, xb, rs, level, res, outcome, nseg)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: s(3), l(3)
+    !> where the search starts (xa%r <= rs < xb%r: [xa%r, rs) is not searched)
+    real(dp), intent(in) :: rs
     type(xpt_t), intent(in) :: xa, xb
     integer, intent(in) :: level
     type(dsm_ray_t), intent(inout) :: res
@@ -536,6 +605,7 @@ contains
     call make_piece(dsm, s, l, xa, xb, pc, pok)
     if (.not. pok) return
     pa = to_l(xa)
+    if (rs > xa%r) call eval_l(pc, rs, pa)
     pb = to_l(xb)
     nst = 0
     do
@@ -653,7 +723,7 @@ contains
       if (level == 1 .and. pb%r - pa%r <= fast_sub * dsm%a) then   ! a short candidate: its own piece
         call eval_p(dsm, s, l, pc, pa%r, xc, res%nsteps)
         call eval_p(dsm, s, l, pc, pb%r, xd, res%nsteps)
-        call search_piece(dsm, s, l, xc, xd, 2, res, sub, nseg)
+        call search_piece(dsm, s, l, xc, xd, xc%r, 2, res, sub, nseg)
         if (sub /= out_clear) then
           outcome = sub
           return
