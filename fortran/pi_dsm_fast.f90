@@ -598,7 +598,7 @@ contains
     type(piece_t) :: pc
     type(xpt_t) :: xc, xd
     type(lpt_t) :: pa, pb, pm, stack(fast_depth)
-    real(dp) :: dh, hs, hlow, hb, r, g, dr, hc, rsplit, rm, rstar, rc
+    real(dp) :: dh, hs, hlow, hb, r, g, dr, hc, rsplit, rm, rstar, rc, cn, eps
     logical :: found, pok
     integer :: code, nst, it, cell, sub, cst
     outcome = out_declined
@@ -665,6 +665,8 @@ contains
       end if
       if (cell >= 0) then                                 ! one nearest cell: Newton on h - H_cell
         hc = hb
+        cn = huge(1.0_dp)
+        if (dsm%a * (1.0_dp - dsm%e2) + min(hc, 0.0_dp) > 0.0_dp) cn = 1.0_dp / (dsm%a * (1.0_dp - dsm%e2) + min(hc, 0.0_dp))
         r = pa%r
         call eval_p(dsm, s, l, pc, r, xc, res%nsteps)
         g = xc%h - hc
@@ -680,6 +682,13 @@ contains
           r = r + dr
           if (r > pb%r) exit                              ! the first root lies beyond the segment
           if (dr <= 1.0e-9_dp) then
+            found = .true.
+            exit
+          end if
+          ! h'' <= cn: the root is within cn dr^2 / |dh| after r (as fast_crossing); when that is
+          ! below 1e-9 and inside the segment, r is the answer (no confirming step)
+          eps = cn * dr * dr / (-dh)
+          if (eps <= 1.0e-9_dp .and. eps <= 0.4_dp * dr .and. r + eps <= pb%r) then
             found = .true.
             exit
           end if
