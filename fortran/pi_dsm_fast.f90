@@ -381,15 +381,16 @@ contains
     end do
   end subroutine fast_crossing
 
-  !> The slab's entry at level (H_max) from r = 0 with one conversion where it
-  !> can: the point x on the raised ellipsoid (before the crossing, h > level,
-  !> falling) and rs = x%r + d, d the Newton step from x: the crossing lies in
-  !> [rs, rs + c d^2 / |dh|] (c as in fast_crossing) and is accepted when that
-  !> is <= 1e-9 (so h(rs) >= level, and rs is within 1e-9 before the crossing,
-  !> as fast_crossing's end point). Otherwise fast_crossing (then x%r = rs).
-  pure subroutine fast_entry(dsm, s, l, level, x, rs, found, neval)
+  !> The first crossing of level after r0 (the slab's H_max entry and H_min
+  !> exit) with one conversion where it can: the point x on the raised
+  !> ellipsoid (before the crossing, h > level, falling) and rs = x%r + d, d
+  !> the Newton step from x: the crossing lies in [rs, rs + c d^2 / |dh|] (c
+  !> as in fast_crossing) and is accepted when that is <= 1e-9 (so h(rs) >=
+  !> level, and rs is within 1e-9 before the crossing: fast_crossing's end
+  !> point, not converted). Otherwise fast_crossing (then x%r = rs).
+  pure subroutine fast_entry(dsm, s, l, r0, level, x, rs, found, neval)
     type(dsm_t), intent(in) :: dsm
-    real(dp), intent(in) :: s(3), l(3), level
+    real(dp), intent(in) :: s(3), l(3), r0, level
     type(xpt_t), intent(out) :: x
     real(dp), intent(out) :: rs
     logical, intent(out) :: found
@@ -400,7 +401,7 @@ contains
       den = dsm%a * (1.0_dp - dsm%e2) + min(level, 0.0_dp)
       rg = level + 1.0e-9_dp * dsm%a + dsm%e2**2 * abs(level) / 8.0_dp
       call ellipsoid_entry(dsm%a + rg, dsm%b + rg, s, l, rg, hit)
-      if (hit .and. rg > 0.0_dp .and. den > 0.0_dp) then
+      if (hit .and. rg > r0 .and. den > 0.0_dp) then
         call eval_x(dsm, s, l, rg, x)
         neval = neval + 1
         if (x%h - level > 0.0_dp .and. x%dh < 0.0_dp) then
@@ -415,7 +416,7 @@ contains
         end if
       end if
     end if
-    call fast_crossing(dsm, s, l, 0.0_dp, level, x, found, neval)
+    call fast_crossing(dsm, s, l, r0, level, x, found, neval)
     rs = x%r
   end subroutine fast_entry
 
@@ -478,13 +479,15 @@ contains
       r_in = 0.0_dp
     else
       ! x_in exact at or (by ~1e-9 a) before r_in, the search's start
-      call fast_entry(dsm, s, l, dsm%hmax, x_in, r_in, found, res%nsteps)
+      call fast_entry(dsm, s, l, 0.0_dp, dsm%hmax, x_in, r_in, found, res%nsteps)
       if (.not. found) then
         res%status = ray_dsm_miss
         return
       end if
     end if
-    call fast_crossing(dsm, s, l, r_in, dsm%hmin, x_end, found, res%nsteps)
+    ! x_end exact at or (by ~1e-9 a) before r_end; the tail [x_end%r, r_end] is
+    ! converted and searched only when the search gets there
+    call fast_entry(dsm, s, l, r_in, dsm%hmin, x_end, r_end, found, res%nsteps)
     if (.not. found) then
       r_far = far_distance(s, l, dsm%a + max(dsm%hmax, 0.0_dp) + 1.0_dp)
       call level_crossing_back(dsm, s, l, max(r_far, r_in), dsm%hmax, r_end, found, res%nsteps)
@@ -493,7 +496,6 @@ contains
       call eval_x(dsm, s, l, r_end, x_end)
       res%nsteps = res%nsteps + 1
     end if
-    r_end = x_end%r
     ! ---- the start point itself (a box bound below its height over data settles it without the lookup)
     if (x_in%r < r_in) then
       ! x_in is before the start: the box of all points within dr of x_in, dr = r_in - x_in%r
@@ -569,6 +571,17 @@ contains
         return
       end if
     end do
+    if (x_end%r < r_end) then                            ! the tail: its end exactly, then its search
+      xa = x_end
+      call eval_x(dsm, s, l, r_end, x_end)
+      res%nsteps = res%nsteps + 1
+      call search_piece(dsm, s, l, xa, x_end, xa%r, 1, res, outcome, nseg)
+      if (outcome == out_decided) return
+      if (outcome == out_declined) then
+        ok = .false.
+        return
+      end if
+    end if
     ! ---- the interval is clear up to r_end: the end point decides (as exact_ray)
     call dsm_height(dsm, x_end%lat, x_end%lon, hs, code)
     if (code == pt_ok .and. x_end%h <= hs + 1.0e-12_dp * dsm%a + 1.0e-9_dp * abs(hs)) then
