@@ -168,19 +168,24 @@ contains
   !> Bounds of the segment [pa, pb] of piece pc (as pi_dsm_exact's
   !> segment_bounds): hlow <= h on it, hb >= the surface over its box (+huge
   !> unknown or no-data), cell >= 0 when the box is one "nearest" cell, rsplit
+  !> the estimated crossing of the one cell boundary it straddles (clamped to
+  !> the segment when only the widening straddles it; 0: none), wm the half
+  !> width along the ray of the band around it where the widened box straddles
+  !> the boundary (at least refine_tol / 4). Only speed depends on them.
   !> the estimated crossing of the one cell boundary it straddles (0: none).
-  pure subroutine seg_bounds(dsm, pc, pa, pb, hlow, hb, cell, rsplit)
+  pure subroutine seg_bounds(dsm, pc, pa, pb, hlow, hb, cell, rsplit, wm)
     type(dsm_t), intent(in) :: dsm
     type(piece_t), intent(in) :: pc
     type(lpt_t), intent(in) :: pa, pb
-    real(dp), intent(out) :: hlow, hb, rsplit
+    real(dp), intent(out) :: hlow, hb, rsplit, wm
     integer, intent(out) :: cell
-    real(dp) :: v0, v1, u0, u1, du, t
+    real(dp) :: v0, v1, u0, u1, du, t, dm
     integer :: ci0, ci1, cj0, cj1
     logical :: out
     hlow = h_lower(pc, pa%r, pb%r)
     cell = -1
     rsplit = 0.0_dp
+    wm = 0.25_dp * refine_tol
     v0 = min(pa%v, pb%v) - pc%dv
     v1 = max(pa%v, pb%v) + pc%dv
     u0 = min(pa%u, pb%u) - pc%du
@@ -194,12 +199,22 @@ contains
         cell = 1
       else if (ci1 - ci0 + cj1 - cj0 == 1) then
         ! one wall between: split just before its estimated crossing (only speed depends on it)
+        ! (a crossing outside the segment: only the widening straddles, at the nearer end)
         if (cj1 > cj0) then
+          dm = abs(du)
           t = (cj0 + 0.5_dp - pa%u) / du
+          wm = max(wm, 1.5_dp * pc%du * (pb%r - pa%r) / dm)
         else
+          dm = abs(pb%v - pa%v)
           t = (ci0 + 0.5_dp - pa%v) / (pb%v - pa%v)
+          wm = max(wm, 1.5_dp * pc%dv * (pb%r - pa%r) / dm)
         end if
-        if (t > 0.0_dp .and. t < 1.0_dp) rsplit = pa%r + t * (pb%r - pa%r)
+        if (dm > 0.0_dp .and. t > -1.0e6_dp .and. t < 1.0e6_dp) &
+          rsplit = pa%r + min(max(t, 0.0_dp), 1.0_dp) * (pb%r - pa%r)
+        if (.not. (rsplit > 0.0_dp .and. wm < huge(1.0_dp))) then
+          rsplit = 0.0_dp
+          wm = 0.25_dp * refine_tol
+        end if
       end if
     end if
   end subroutine seg_bounds
@@ -611,7 +626,7 @@ contains
     type(piece_t) :: pc
     type(xpt_t) :: xc, xd
     type(lpt_t) :: pa, pb, pm, stack(fast_depth)
-    real(dp) :: dh, hs, hlow, hb, r, g, dr, hc, rsplit, rm, rstar, rc, cn, eps
+    real(dp) :: dh, hs, hlow, hb, r, g, dr, hc, rsplit, rm, rstar, rc, cn, eps, wm
     logical :: found, pok
     integer :: code, nst, it, cell, sub, cst
     outcome = out_declined
@@ -627,7 +642,7 @@ contains
         outcome = out_declined
         return
       end if
-      call seg_bounds(dsm, pc, pa, pb, hlow, hb, cell, rsplit)
+      call seg_bounds(dsm, pc, pa, pb, hlow, hb, cell, rsplit, wm)
       if (hlow > hb) then                                 ! nothing to meet in this segment
         call next_segment(pa, pb, stack, nst)
         if (nst < 0) exit
@@ -759,11 +774,11 @@ contains
         return
       end if
       rm = 0.5_dp * (pa%r + pb%r)
-      if (rsplit > 0.0_dp) then
-        if (rsplit - 0.25_dp * refine_tol > pa%r + 0.125_dp * refine_tol) then
-          rm = rsplit - 0.25_dp * refine_tol
-        else if (rsplit + 0.25_dp * refine_tol < pb%r - 0.125_dp * refine_tol) then
-          rm = rsplit + 0.25_dp * refine_tol
+      if (rsplit > 0.0_dp) then                         ! around the wall's band: one cell on each side
+        if (rsplit - wm > pa%r + 0.125_dp * refine_tol) then
+          rm = rsplit - wm
+        else if (rsplit + wm < pb%r - 0.125_dp * refine_tol) then
+          rm = rsplit + wm
         end if
       end if
       call eval_l(pc, rm, pm)
