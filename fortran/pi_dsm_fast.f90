@@ -172,14 +172,13 @@ contains
   !> the segment when only the widening straddles it; 0: none), wm the half
   !> width along the ray of the band around it where the widened box straddles
   !> the boundary (at least refine_tol / 4). Only speed depends on them.
-  !> the estimated crossing of the one cell boundary it straddles (0: none).
   pure subroutine seg_bounds(dsm, pc, pa, pb, hlow, hb, cell, rsplit, wm)
     type(dsm_t), intent(in) :: dsm
     type(piece_t), intent(in) :: pc
     type(lpt_t), intent(in) :: pa, pb
     real(dp), intent(out) :: hlow, hb, rsplit, wm
     integer, intent(out) :: cell
-    real(dp) :: v0, v1, u0, u1, du, t, dm
+    real(dp) :: v0, v1, u0, u1, t, dm, w
     integer :: ci0, ci1, cj0, cj1
     logical :: out
     hlow = h_lower(pc, pa%r, pb%r)
@@ -190,7 +189,6 @@ contains
     v1 = max(pa%v, pb%v) + pc%dv
     u0 = min(pa%u, pb%u) - pc%du
     u1 = max(pa%u, pb%u) + pc%du
-    du = pb%u - pa%u
     call dsm_box_bound(dsm, u0, u1, v0, v1, hb, out)
     if (dsm%interp == interp_nearest .and. .not. out .and. .not. dsm%global .and. hb < huge(1.0_dp)) then
       ci0 = ceiling(v0 - 0.5_dp); ci1 = floor(v1 + 0.5_dp)
@@ -201,16 +199,19 @@ contains
         ! one wall between: split just before its estimated crossing (only speed depends on it)
         ! (a crossing outside the segment: only the widening straddles, at the nearer end)
         if (cj1 > cj0) then
-          dm = abs(du)
-          t = (cj0 + 0.5_dp - pa%u) / du
-          wm = max(wm, 1.5_dp * pc%du * (pb%r - pa%r) / dm)
+          dm = pb%u - pa%u
+          t = cj0 + 0.5_dp - pa%u
+          w = pc%du
         else
-          dm = abs(pb%v - pa%v)
-          t = (ci0 + 0.5_dp - pa%v) / (pb%v - pa%v)
-          wm = max(wm, 1.5_dp * pc%dv * (pb%r - pa%r) / dm)
+          dm = pb%v - pa%v
+          t = ci0 + 0.5_dp - pa%v
+          w = pc%dv
         end if
-        if (dm > 0.0_dp .and. t > -1.0e6_dp .and. t < 1.0e6_dp) &
-          rsplit = pa%r + min(max(t, 0.0_dp), 1.0_dp) * (pb%r - pa%r)
+        if (abs(dm) > 0.0_dp) then                       ! (no division by zero)
+          t = t / dm
+          wm = max(wm, 1.5_dp * w * (pb%r - pa%r) / abs(dm))
+          if (t > -1.0e6_dp .and. t < 1.0e6_dp) rsplit = pa%r + min(max(t, 0.0_dp), 1.0_dp) * (pb%r - pa%r)
+        end if
         if (.not. (rsplit > 0.0_dp .and. wm < huge(1.0_dp))) then
           rsplit = 0.0_dp
           wm = 0.25_dp * refine_tol
