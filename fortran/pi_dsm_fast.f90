@@ -91,6 +91,24 @@ contains
     call dsm_grid_uv(dsm, q%lat, q%lon, q%u, q%v)
   end subroutine eval_x
 
+  !> Exact ray point at r, reusing the piece's exact end when r is one of
+  !> them (the same conversion: bit-identical); n counts conversions made.
+  pure subroutine eval_p(dsm, s, l, pc, r, q, n)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3), r
+    type(piece_t), intent(in) :: pc
+    type(xpt_t), intent(out) :: q
+    integer, intent(inout) :: n
+    if (r == pc%a%r) then
+      q = pc%a
+    else if (r == pc%b%r) then
+      q = pc%b
+    else
+      call eval_x(dsm, s, l, r, q)
+      n = n + 1
+    end if
+  end subroutine eval_p
+
   !> Cheap ray point at r on piece pc: u and v of the linear models.
   pure subroutine eval_l(pc, r, q)
     type(piece_t), intent(in) :: pc
@@ -150,24 +168,27 @@ contains
   !> Bounds of the segment [pa, pb] of piece pc (as pi_dsm_exact's
   !> segment_bounds): hlow <= h on it, hb >= the surface over its box (+huge
   !> unknown or no-data), cell >= 0 when the box is one "nearest" cell, rsplit
-  !> the estimated crossing of the one cell boundary it straddles (0: none).
-  pure subroutine seg_bounds(dsm, pc, pa, pb, hlow, hb, cell, rsplit)
+  !> the estimated crossing of the one cell boundary it straddles (clamped to
+  !> the segment when only the widening straddles it; 0: none), wm the half
+  !> width along the ray of the band around it where the widened box straddles
+  !> the boundary (at least refine_tol / 4). Only speed depends on them.
+  pure subroutine seg_bounds(dsm, pc, pa, pb, hlow, hb, cell, rsplit, wm)
     type(dsm_t), intent(in) :: dsm
     type(piece_t), intent(in) :: pc
     type(lpt_t), intent(in) :: pa, pb
-    real(dp), intent(out) :: hlow, hb, rsplit
+    real(dp), intent(out) :: hlow, hb, rsplit, wm
     integer, intent(out) :: cell
-    real(dp) :: v0, v1, u0, u1, du, t
+    real(dp) :: v0, v1, u0, u1, t, dm, w
     integer :: ci0, ci1, cj0, cj1
     logical :: out
     hlow = h_lower(pc, pa%r, pb%r)
     cell = -1
     rsplit = 0.0_dp
+    wm = 0.25_dp * refine_tol
     v0 = min(pa%v, pb%v) - pc%dv
     v1 = max(pa%v, pb%v) + pc%dv
     u0 = min(pa%u, pb%u) - pc%du
     u1 = max(pa%u, pb%u) + pc%du
-    du = pb%u - pa%u
     call dsm_box_bound(dsm, u0, u1, v0, v1, hb, out)
     if (dsm%interp == interp_nearest .and. .not. out .and. .not. dsm%global .and. hb < huge(1.0_dp)) then
       ci0 = ceiling(v0 - 0.5_dp); ci1 = floor(v1 + 0.5_dp)
@@ -176,12 +197,25 @@ contains
         cell = 1
       else if (ci1 - ci0 + cj1 - cj0 == 1) then
         ! one wall between: split just before its estimated crossing (only speed depends on it)
+        ! (a crossing outside the segment: only the widening straddles, at the nearer end)
         if (cj1 > cj0) then
-          t = (cj0 + 0.5_dp - pa%u) / du
+          dm = pb%u - pa%u
+          t = cj0 + 0.5_dp - pa%u
+          w = pc%du
         else
-          t = (ci0 + 0.5_dp - pa%v) / (pb%v - pa%v)
+          dm = pb%v - pa%v
+          t = ci0 + 0.5_dp - pa%v
+          w = pc%dv
         end if
-        if (t > 0.0_dp .and. t < 1.0_dp) rsplit = pa%r + t * (pb%r - pa%r)
+        if (abs(dm) > 0.0_dp) then                       ! (no division by zero)
+          t = t / dm
+          wm = max(wm, 1.5_dp * w * (pb%r - pa%r) / abs(dm))
+          if (t > -1.0e6_dp .and. t < 1.0e6_dp) rsplit = pa%r + min(max(t, 0.0_dp), 1.0_dp) * (pb%r - pa%r)
+        end if
+        if (.not. (rsplit > 0.0_dp .and. wm < huge(1.0_dp))) then
+          rsplit = 0.0_dp
+          wm = 0.25_dp * refine_tol
+        end if
       end if
     end if
   end subroutine seg_bounds
@@ -363,6 +397,45 @@ contains
     end do
   end subroutine fast_crossing
 
+  !> The first crossing of level after r0 (the slab's H_max entry and H_min
+  !> exit) with one conversion where it can: the point x on the raised
+  !> ellipsoid (before the crossing, h > level, falling) and rs = x%r + d, d
+  !> the Newton step from x: the crossing lies in [rs, rs + c d^2 / |dh|] (c
+  !> as in fast_crossing) and is accepted when that is <= 1e-9 (so h(rs) >=
+  !> level, and rs is within 1e-9 before the crossing: fast_crossing's end
+  !> point, not converted). Otherwise fast_crossing (then x%r = rs).
+  pure subroutine fast_entry(dsm, s, l, r0, level, x, rs, found, neval)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3), r0, level
+    type(xpt_t), intent(out) :: x
+    real(dp), intent(out) :: rs
+    logical, intent(out) :: found
+    integer, intent(inout) :: neval
+    real(dp) :: rg, c, d, eps, den
+    logical :: hit
+    if (level > -0.5_dp * dsm%b) then
+      den = dsm%a * (1.0_dp - dsm%e2) + min(level, 0.0_dp)
+      rg = level + 1.0e-9_dp * dsm%a + dsm%e2**2 * abs(level) / 8.0_dp
+      call ellipsoid_entry(dsm%a + rg, dsm%b + rg, s, l, rg, hit)
+      if (hit .and. rg > r0 .and. den > 0.0_dp) then
+        call eval_x(dsm, s, l, rg, x)
+        neval = neval + 1
+        if (x%h - level > 0.0_dp .and. x%dh < 0.0_dp) then
+          d = -(x%h - level) / x%dh
+          c = 1.0_dp / den
+          eps = c * d * d / (-x%dh)
+          if (eps <= 1.0e-9_dp .and. eps <= 0.4_dp * d) then
+            found = .true.
+            rs = rg + d
+            return
+          end if
+        end if
+      end if
+    end if
+    call fast_crossing(dsm, s, l, r0, level, x, found, neval)
+    rs = x%r
+  end subroutine fast_entry
+
   !> Build piece [xa, xb]: its latitude widening in grid rows (ok = .false.
   !> when the bound does not apply or exceeds fast_maxdv).
   pure subroutine make_piece(dsm, s, l, xa, xb, pc, ok)
@@ -404,7 +477,7 @@ contains
     type(dsm_ray_t), intent(inout) :: res
     logical, intent(out) :: ok
     type(xpt_t) :: x_in, x_end, xa, xb
-    real(dp) :: r_in, r_end, r_far, lat, lon, h, dh, hs, rnext, hb, rho, lp
+    real(dp) :: r_in, r_end, r_far, lat, lon, h, dh, hs, rnext, hb, rho, lp, dr, den, gu, gv
     logical :: found, out
     integer :: code, k, npc, outcome, nseg
     ok = .true.
@@ -419,15 +492,18 @@ contains
     if (h <= dsm%hmax) then
       call eval_x(dsm, s, l, 0.0_dp, x_in)
       res%nsteps = res%nsteps + 1
+      r_in = 0.0_dp
     else
-      call fast_crossing(dsm, s, l, 0.0_dp, dsm%hmax, x_in, found, res%nsteps)
+      ! x_in exact at or (by ~1e-9 a) before r_in, the search's start
+      call fast_entry(dsm, s, l, 0.0_dp, dsm%hmax, x_in, r_in, found, res%nsteps)
       if (.not. found) then
         res%status = ray_dsm_miss
         return
       end if
     end if
-    r_in = x_in%r
-    call fast_crossing(dsm, s, l, r_in, dsm%hmin, x_end, found, res%nsteps)
+    ! x_end exact at or (by ~1e-9 a) before r_end; the tail [x_end%r, r_end] is
+    ! converted and searched only when the search gets there
+    call fast_entry(dsm, s, l, r_in, dsm%hmin, x_end, r_end, found, res%nsteps)
     if (.not. found) then
       r_far = far_distance(s, l, dsm%a + max(dsm%hmax, 0.0_dp) + 1.0_dp)
       call level_crossing_back(dsm, s, l, max(r_far, r_in), dsm%hmax, r_end, found, res%nsteps)
@@ -436,14 +512,41 @@ contains
       call eval_x(dsm, s, l, r_end, x_end)
       res%nsteps = res%nsteps + 1
     end if
-    r_end = x_end%r
     ! ---- the start point itself (a box bound below its height over data settles it without the lookup)
-    call dsm_box_bound(dsm, x_in%u - 1.0e-9_dp, x_in%u + 1.0e-9_dp, x_in%v - 1.0e-9_dp, x_in%v + 1.0e-9_dp, hb, out)
-    if (hb < x_in%h .and. .not. out) then
-      code = pt_ok
+    if (x_in%r < r_in) then
+      ! x_in is before the start: the box of all points within dr of x_in, dr = r_in - x_in%r
+      ! (|dlat/dr| <= 1/den, |dlon/dr| <= 1/rho), where h >= h(r_in) >= H_max (the tangent at x_in)
+      dr = 2.0_dp * (r_in - x_in%r) + 1.0e-9_dp * dsm%a
+      rho = axis_distance(s, l, x_in%r, r_in + dr)
+      den = dsm%a * (1.0_dp - dsm%e2) + min(dsm%hmin, 0.0_dp)
+      gv = 1.0e-9_dp + fast_latmarg * (1.0_dp + abs(x_in%lat)) / abs(dsm%dlat)
+      gu = 1.0e-9_dp + fast_latmarg * (1.0_dp + pi) / dsm%dlon
+      if (rho > 0.0_dp .and. den > 0.0_dp) then
+        gv = gv + dr / (den * abs(dsm%dlat))
+        gu = gu + dr / (rho * dsm%dlon)
+      else
+        gv = huge(1.0_dp)
+      end if
+      hb = huge(1.0_dp)
+      out = .true.
+      if (gu < 1.0_dp .and. gv < 1.0_dp) &
+        call dsm_box_bound(dsm, x_in%u - gu, x_in%u + gu, x_in%v - gv, x_in%v + gv, hb, out)
+      if (.not. (hb < dsm%hmax - fast_hmarg * dsm%a - 1.0e-13_dp * abs(dsm%hmax) .and. .not. out)) then
+        call eval_x(dsm, s, l, r_in, x_in)               ! not settled: the start point exactly
+        res%nsteps = res%nsteps + 1
+      end if
+    end if
+    if (x_in%r < r_in) then
+      code = pt_ok                                       ! settled above: no hit, no no-data there
       hs = hb
     else
-      call dsm_height(dsm, x_in%lat, x_in%lon, hs, code)
+      call dsm_box_bound(dsm, x_in%u - 1.0e-9_dp, x_in%u + 1.0e-9_dp, x_in%v - 1.0e-9_dp, x_in%v + 1.0e-9_dp, hb, out)
+      if (hb < x_in%h .and. .not. out) then
+        code = pt_ok
+        hs = hb
+      else
+        call dsm_height(dsm, x_in%lat, x_in%lon, hs, code)
+      end if
     end if
     if (code == pt_nodata) then
       call set_event(dsm, s, l, r_in, ray_no_data, res)
@@ -477,13 +580,24 @@ contains
         res%nsteps = res%nsteps + 1
       end if
       if (.not. (xb%r > xa%r)) cycle
-      call search_piece(dsm, s, l, xa, xb, 1, res, outcome, nseg)
+      call search_piece(dsm, s, l, xa, xb, max(r_in, xa%r), 1, res, outcome, nseg)
       if (outcome == out_decided) return
       if (outcome == out_declined) then
         ok = .false.
         return
       end if
     end do
+    if (x_end%r < r_end) then                            ! the tail: its end exactly, then its search
+      xa = x_end
+      call eval_x(dsm, s, l, r_end, x_end)
+      res%nsteps = res%nsteps + 1
+      call search_piece(dsm, s, l, xa, x_end, xa%r, 1, res, outcome, nseg)
+      if (outcome == out_decided) return
+      if (outcome == out_declined) then
+        ok = .false.
+        return
+      end if
+    end if
     ! ---- the interval is clear up to r_end: the end point decides (as exact_ray)
     call dsm_height(dsm, x_end%lat, x_end%lon, hs, code)
     if (code == pt_ok .and. x_end%h <= hs + 1.0e-12_dp * dsm%a + 1.0e-9_dp * abs(hs)) then
@@ -500,9 +614,11 @@ contains
   !> its own (level 2: exact ends, so its tangent bound is within
   !> fast_sub^2 / (8 M_min) of h). outcome: out_clear (nothing on the piece),
   !> out_decided (res holds the hit or no-data event), out_declined.
-  recursive pure subroutine search_piece(dsm, s, l, xa, xb, level, res, outcome, nseg)
+  recursive pure subroutine search_piece(dsm, s, l, xa, xb, rs, level, res, outcome, nseg)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: s(3), l(3)
+    !> where the search starts (xa%r <= rs < xb%r: [xa%r, rs) is not searched)
+    real(dp), intent(in) :: rs
     type(xpt_t), intent(in) :: xa, xb
     integer, intent(in) :: level
     type(dsm_ray_t), intent(inout) :: res
@@ -511,13 +627,14 @@ contains
     type(piece_t) :: pc
     type(xpt_t) :: xc, xd
     type(lpt_t) :: pa, pb, pm, stack(fast_depth)
-    real(dp) :: dh, hs, hlow, hb, r, g, dr, hc, rsplit, rm, rstar, rc
+    real(dp) :: dh, hs, hlow, hb, r, g, dr, hc, rsplit, rm, rstar, rc, cn, eps, wm
     logical :: found, pok
     integer :: code, nst, it, cell, sub, cst
     outcome = out_declined
     call make_piece(dsm, s, l, xa, xb, pc, pok)
     if (.not. pok) return
     pa = to_l(xa)
+    if (rs > xa%r) call eval_l(pc, rs, pa)
     pb = to_l(xb)
     nst = 0
     do
@@ -526,7 +643,7 @@ contains
         outcome = out_declined
         return
       end if
-      call seg_bounds(dsm, pc, pa, pb, hlow, hb, cell, rsplit)
+      call seg_bounds(dsm, pc, pa, pb, hlow, hb, cell, rsplit, wm)
       if (hlow > hb) then                                 ! nothing to meet in this segment
         call next_segment(pa, pb, stack, nst)
         if (nst < 0) exit
@@ -555,8 +672,7 @@ contains
         else if (cst == 2) then
           ! no entry before rstar: classify rstar + tol/2 (a leaf of length tol/2)
           r = min(rstar + 0.5_dp * refine_tol, pb%r)
-          call eval_x(dsm, s, l, r, xc)
-          res%nsteps = res%nsteps + 1
+          call eval_p(dsm, s, l, pc, r, xc, res%nsteps)
           call dsm_height(dsm, xc%lat, xc%lon, hs, code)
           if (code == pt_nodata) then
             call set_event(dsm, s, l, r, ray_no_data, res)
@@ -578,9 +694,10 @@ contains
       end if
       if (cell >= 0) then                                 ! one nearest cell: Newton on h - H_cell
         hc = hb
+        cn = huge(1.0_dp)
+        if (dsm%a * (1.0_dp - dsm%e2) + min(hc, 0.0_dp) > 0.0_dp) cn = 1.0_dp / (dsm%a * (1.0_dp - dsm%e2) + min(hc, 0.0_dp))
         r = pa%r
-        call eval_x(dsm, s, l, r, xc)
-        res%nsteps = res%nsteps + 1
+        call eval_p(dsm, s, l, pc, r, xc, res%nsteps)
         g = xc%h - hc
         dh = xc%dh
         found = .false.
@@ -594,6 +711,13 @@ contains
           r = r + dr
           if (r > pb%r) exit                              ! the first root lies beyond the segment
           if (dr <= 1.0e-9_dp) then
+            found = .true.
+            exit
+          end if
+          ! h'' <= cn: the root is within cn dr^2 / |dh| after r (as fast_crossing); when that is
+          ! below 1e-9 and inside the segment, r is the answer (no confirming step)
+          eps = cn * dr * dr / (-dh)
+          if (eps <= 1.0e-9_dp .and. eps <= 0.4_dp * dr .and. r + eps <= pb%r) then
             found = .true.
             exit
           end if
@@ -619,8 +743,7 @@ contains
         end if
       end if
       if (pb%r - pa%r <= refine_tol) then                 ! a short segment: classify its end exactly
-        call eval_x(dsm, s, l, pb%r, xc)
-        res%nsteps = res%nsteps + 1
+        call eval_p(dsm, s, l, pc, pb%r, xc, res%nsteps)
         call dsm_height(dsm, xc%lat, xc%lon, hs, code)
         if (code == pt_nodata) then
           call set_event(dsm, s, l, pb%r, ray_no_data, res)
@@ -636,10 +759,9 @@ contains
         cycle
       end if
       if (level == 1 .and. pb%r - pa%r <= fast_sub * dsm%a) then   ! a short candidate: its own piece
-        call eval_x(dsm, s, l, pa%r, xc)
-        call eval_x(dsm, s, l, pb%r, xd)
-        res%nsteps = res%nsteps + 2
-        call search_piece(dsm, s, l, xc, xd, 2, res, sub, nseg)
+        call eval_p(dsm, s, l, pc, pa%r, xc, res%nsteps)
+        call eval_p(dsm, s, l, pc, pb%r, xd, res%nsteps)
+        call search_piece(dsm, s, l, xc, xd, xc%r, 2, res, sub, nseg)
         if (sub /= out_clear) then
           outcome = sub
           return
@@ -653,11 +775,11 @@ contains
         return
       end if
       rm = 0.5_dp * (pa%r + pb%r)
-      if (rsplit > 0.0_dp) then
-        if (rsplit - 0.25_dp * refine_tol > pa%r + 0.125_dp * refine_tol) then
-          rm = rsplit - 0.25_dp * refine_tol
-        else if (rsplit + 0.25_dp * refine_tol < pb%r - 0.125_dp * refine_tol) then
-          rm = rsplit + 0.25_dp * refine_tol
+      if (rsplit > 0.0_dp) then                         ! around the wall's band: one cell on each side
+        if (rsplit - wm > pa%r + 0.125_dp * refine_tol) then
+          rm = rsplit - wm
+        else if (rsplit + wm < pb%r - 0.125_dp * refine_tol) then
+          rm = rsplit + wm
         end if
       end if
       call eval_l(pc, rm, pm)

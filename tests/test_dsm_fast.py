@@ -112,6 +112,50 @@ def test_nodata_and_edges(city, interp):
     assert counts.get(NO_DATA, 0) >= 50 and counts.get(HIT, 0) >= 1500 and counts.get(LEFT_DSM, 0) >= 10
 
 
+def _level_crossing(s, l, level, r_hi):
+    """First r in [0, r_hi] with h(s + r l) <= level, by bisection with the references' own
+    geodesy (h falls monotonically over the bracket for these steep rays)."""
+    from references.geodesy import ecef_to_geodetic_rad
+    lo, hi = np.zeros(len(s)), np.asarray(r_hi, dtype=np.float64).copy()
+    for _ in range(90):
+        mid = 0.5 * (lo + hi)
+        p = s + mid[:, None] * l
+        above = ecef_to_geodetic_rad(p[:, 0], p[:, 1], p[:, 2])[3] > level
+        lo, hi = np.where(above, mid, lo), np.where(above, hi, mid)
+    return hi
+
+
+@pytest.mark.parametrize("interp", ["bilinear", "nearest"])
+def test_slab_ends(interp):
+    """The slab's ends are found with one conversion each (the Newton step from the raised
+    ellipsoid is not converted; the H_min tail is converted only when the search reaches it).
+    Hits and no-data events right at them: a plateau at H_max (the hit is where the ray
+    crosses H_max), a no-data hole (the event is there), and flat ground at H_min (the hit
+    is where it crosses H_min). Against exact_ray and an independent bisection of
+    h(r) = level with tests/references/geodesy.py, to the contract's 1e-6 m."""
+    rng = np.random.default_rng(21)
+    d, n, m = 1e-4, 100, 400
+    lat0, lon0 = 45.0, 10.0
+    h = rng.uniform(0.0, 50.0, (n, n))
+    h[30:71, 30:71] = 300.0                                    # a plateau at H_max
+    h[5:16, 5:16] = np.nan                                     # a no-data hole
+    flat = np.full((n, n), 100.0)                              # flat ground at H_min ...
+    flat[95:, 95:] = 200.0                                     # ... and one tower (H_max)
+    cases = [(h, 50.0, HIT, 300.0), (h, 10.0, NO_DATA, 300.0), (flat, 50.0, HIT, 100.0)]
+    for k, (grid, centre, status, level) in enumerate(cases):
+        dsm = pi.GeodeticDSM.from_array(grid, lat0, lon0, d, d, interpolation=interp)
+        lat = lat0 + (centre + rng.uniform(-2.0, 2.0, m)) * d
+        lon = lon0 + (centre + rng.uniform(-2.0, 2.0, m)) * d
+        s, l = _patch_rays(lat, lon, m, 22 + k, zen=(0.0, 4.0))
+        l = l / np.linalg.norm(l, axis=1, keepdims=True)
+        frac, counts, _, _ = compare(dsm, s, l, min_fast=0.99)
+        assert counts == {status: m}, f"case {k}: {counts}"
+        st, r, _ = trace(dsm, s, l, EXACT)
+        r_bis = _level_crossing(s, l, level, r + 50.0)
+        dr = np.abs(r - r_bis)
+        assert dr.max() <= TOL_R, f"case {k}: max |r - r(h = {level})| = {dr.max():.3g} m"
+
+
 def _patch_rays(lat, lon, n, seed, zen=(0.0, 40.0), height=(5e3, 700e3)):
     rng = np.random.default_rng(seed)
     target = geodetic_to_ecef(lat, lon, np.zeros(n))
