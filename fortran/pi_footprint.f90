@@ -29,7 +29,7 @@
 !> the same code whichever OpenMP thread runs them, so results are
 !> bit-identical for any thread count. No STOP, no I/O.
 module pi_footprint
-  use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
+  use pi_ieee, only: nan_dp
   use pi_kinds, only: dp, i8
   use pi_vector, only: pi
   !$ use omp_lib, only: omp_get_max_threads
@@ -521,7 +521,7 @@ contains
         az = wrap_2pi(wrap_2pi(track - pa))
         s8(b) = az * ascale
       end do
-      nan = ieee_value(nan, ieee_quiet_nan)
+      nan = nan_dp
       do b = 1, nb
         if (.not. rho(b) > 0.0_dp) then                    ! the cell at the sub-spacecraft point
           s7(b) = nan
@@ -529,7 +529,7 @@ contains
         end if
       end do
     else
-      nan = ieee_value(nan, ieee_quiet_nan)
+      nan = nan_dp
       do b = 1, nb
         s7(b) = nan                                        ! over a pole north is undefined
         s8(b) = wrap_2pi(atan2(g(3, b), g(2, b))) * ascale
