@@ -27,7 +27,7 @@
 module pi_dsm_exact
   use pi_kinds, only: dp
   use pi_status
-  use pi_vector, only: pi
+  use pi_vector, only: pi, axis_distance, far_distance
   use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, pt_ok, pt_outside, &
                     pt_nodata
   use pi_follow, only: dsm_ray_t, follow_ray, iterate_ray, ray_geo, level_crossing, level_crossing_back, &
@@ -344,31 +344,6 @@ contains
     pb = stack(nst)
     nst = nst - 1
   end subroutine next_segment
-
-  !> Smallest distance from the z axis of the points s + r l, r in [r0, r1].
-  pure function axis_distance(s, l, r0, r1) result(d)
-    real(dp), intent(in) :: s(3), l(3), r0, r1
-    real(dp) :: d, ll, rr
-    ll = l(1)**2 + l(2)**2
-    if (ll > 0.0_dp) then
-      rr = -(s(1) * l(1) + s(2) * l(2)) / ll
-    else
-      rr = r0
-    end if
-    rr = min(max(rr, r0), r1)
-    d = sqrt((s(1) + rr * l(1))**2 + (s(2) + rr * l(2))**2)
-  end function axis_distance
-
-  !> Distance along the ray to where it leaves the sphere of radius rad (0 if never inside).
-  pure function far_distance(s, l, rad) result(r)
-    real(dp), intent(in) :: s(3), l(3), rad
-    real(dp) :: r, b, c, disc
-    b = dot_product(s, l)
-    c = dot_product(s, s) - rad * rad
-    disc = b * b - c
-    r = 0.0_dp
-    if (disc > 0.0_dp) r = max(0.0_dp, -b + sqrt(disc))
-  end function far_distance
 
   !> Trace n rays with one of the three methods; OpenMP over rays with a
   !> num_threads clause (threads <= 0: all), no shared mutable state, so the

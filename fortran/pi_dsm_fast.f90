@@ -32,7 +32,7 @@
 module pi_dsm_fast
   use pi_kinds, only: dp
   use pi_status
-  use pi_vector, only: pi
+  use pi_vector, only: pi, axis_distance, far_distance
   use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, pt_ok, pt_nodata
   use pi_follow, only: dsm_ray_t, ray_geo, level_crossing_back, ellipsoid_entry, set_hit, set_event, refine_tol
   use pi_geodetic, only: ecr_to_geodetic_nb
@@ -819,30 +819,5 @@ contains
     pb = stack(nst)
     nst = nst - 1
   end subroutine next_segment
-
-  !> Smallest distance from the z axis of the points s + r l, r in [r0, r1].
-  pure function axis_distance(s, l, r0, r1) result(d)
-    real(dp), intent(in) :: s(3), l(3), r0, r1
-    real(dp) :: d, ll, rr
-    ll = l(1)**2 + l(2)**2
-    if (ll > 0.0_dp) then
-      rr = -(s(1) * l(1) + s(2) * l(2)) / ll
-    else
-      rr = r0
-    end if
-    rr = min(max(rr, r0), r1)
-    d = sqrt((s(1) + rr * l(1))**2 + (s(2) + rr * l(2))**2)
-  end function axis_distance
-
-  !> Distance along the ray to where it leaves the sphere of radius rad (0 if never inside).
-  pure function far_distance(s, l, rad) result(r)
-    real(dp), intent(in) :: s(3), l(3), rad
-    real(dp) :: r, b, c, disc
-    b = dot_product(s, l)
-    c = dot_product(s, s) - rad * rad
-    disc = b * b - c
-    r = 0.0_dp
-    if (disc > 0.0_dp) r = max(0.0_dp, -b + sqrt(disc))
-  end function far_distance
 
 end module pi_dsm_fast

@@ -9,7 +9,7 @@ module pi_vector
   private
 
   public :: pi, deg, rad, cross, unit_vector, rotate_about_vector, lon_diff, vsep, &
-            latlon_of, xyz_of
+            latlon_of, xyz_of, axis_distance, far_distance
 
   !> pi to double precision.
   real(dp), parameter :: pi = 3.14159265358979323846264338327950288_dp
@@ -88,5 +88,30 @@ contains
     x(2) = r*cos(lat)*sin(lon)
     x(3) = r*sin(lat)
   end function xyz_of
+
+  !> Smallest distance from the z axis of the points s + r l, r in [r0, r1].
+  pure function axis_distance(s, l, r0, r1) result(d)
+    real(dp), intent(in) :: s(3), l(3), r0, r1
+    real(dp) :: d, ll, rr
+    ll = l(1)**2 + l(2)**2
+    if (ll > 0.0_dp) then
+      rr = -(s(1) * l(1) + s(2) * l(2)) / ll
+    else
+      rr = r0
+    end if
+    rr = min(max(rr, r0), r1)
+    d = sqrt((s(1) + rr * l(1))**2 + (s(2) + rr * l(2))**2)
+  end function axis_distance
+
+  !> Distance along the ray to where it leaves the sphere of radius rad (0 if never inside).
+  pure function far_distance(s, l, rad) result(r)
+    real(dp), intent(in) :: s(3), l(3), rad
+    real(dp) :: r, b, c, disc
+    b = dot_product(s, l)
+    c = dot_product(s, s) - rad * rad
+    disc = b * b - c
+    r = 0.0_dp
+    if (disc > 0.0_dp) r = max(0.0_dp, -b + sqrt(disc))
+  end function far_distance
 
 end module pi_vector
