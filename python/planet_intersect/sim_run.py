@@ -17,7 +17,7 @@ def paper_experiment(size: int = 640, methods=("exact", "iterative"), zenith: fl
     Jacksboro base DEM, four polygon buildings, synthetic ortho-photo), seen by
     a north-bound pushbroom from the East at ``zenith`` degrees, simulated with
     each method. Returns dict(scene, dsm, ortho, sensor, sims={method: SimResult})."""
-    from . import FrameCamera, GeodeticDSM, OrthoImage, Pushbroom, simulate_image  # noqa: F401
+    from . import GeodeticDSM, OrthoImage, Pushbroom, simulate_image
     from .synthetic_dsm import oblique_pushbroom, paper_scene
 
     sc = paper_scene(size)

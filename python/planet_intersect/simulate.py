@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from .dsm import DSMStatus, GeodeticDSM, _number
-from .geodetic import WGS84_A, WGS84_F, geodetic_to_ecef
+from .geodetic import geodetic_to_ecef
 
 __all__ = ["OrthoImage", "SimResult", "simulate_image", "SURFACE_CODES"]
 

@@ -7,7 +7,6 @@ test_simulate_references.py); it guards the translation into Fortran."""
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
