@@ -22,6 +22,11 @@ own) after an untimed warm-up call, median of timed calls over >= 2 s
   (pairs/s of the occlusion alone: the geometry's time is subtracted);
 * cells: the CellTable build (not cached: a fresh DEM object per call).
 
+Each case runs with the core the package chooses (column "core": ``_core_v3``
+on x86-64-v3 CPUs, see planet_intersect/_ext.py); the one-thread geometry
+cases run a second time with ``PI_CORE=portable`` (``_core``), so that the
+two builds are compared in the same run.
+
 Both wall time and CPU time of the process (time.process_time, all threads)
 are recorded per call: the machine this was written on is shared, and CPU
 time does not count the time spent waiting for a core. pairs/s and ns per
@@ -137,7 +142,7 @@ def measure(spec: dict) -> dict:
             kept = npairs
             npairs = len(footprint(cells, R, v, airmass_model=None, threads=threads))
     mw, mc = float(np.median(wall)), float(np.median(cpu))
-    out = dict(pairs=npairs, spectra=len(R), pairs_per_spectrum=npairs / len(R), calls=len(wall),
+    out = dict(core=pi.core_info()["module"], pairs=npairs, spectra=len(R), pairs_per_spectrum=npairs / len(R), calls=len(wall),
                pairs_per_second_wall=npairs / mw, pairs_per_cpu_second=npairs / mc,
                ns_per_pair_wall=1e9 * mw / npairs, ns_per_pair_cpu=1e9 * mc / npairs,
                wall_q25_q75=[float(x) for x in np.percentile(wall, [25, 75])], peak_rss_mb=peak_rss_mb())
@@ -149,7 +154,11 @@ def measure(spec: dict) -> dict:
 
 
 def run_isolated(spec: dict) -> dict:
-    proc = subprocess.run([sys.executable, __file__, "--one", json.dumps(spec)], capture_output=True, text=True)
+    env = dict(os.environ)
+    if spec.get("core"):
+        env["PI_CORE"] = spec["core"]
+    proc = subprocess.run([sys.executable, __file__, "--one", json.dumps(spec)], capture_output=True, text=True,
+                          env=env)
     if proc.returncode != 0:
         return {"error": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else f"exit {proc.returncode}"}
     return json.loads(proc.stdout.strip().splitlines()[-1])
@@ -170,13 +179,15 @@ def main(argv=None) -> int:
         print(f"skipped: no MOLA grid at {MOLA} (set PI_SHARED_DATA)", file=sys.stderr)
         return 0
     nspec, min_s = (8, 0.3) if args.quick else (64, 2.0)
-    cases = [("geometry", "fresh", 1), ("geometry", "fresh", 2), ("geometry", "reuse", 1), ("geometry", "reuse", 2),
-             ("geometry", "chunks", 1), ("flux", "fresh", 1), ("occlusion", "fresh", 1), ("cells", "", 1)]
+    cases = [("geometry", "fresh", 1, ""), ("geometry", "fresh", 1, "portable"), ("geometry", "fresh", 2, ""),
+             ("geometry", "reuse", 1, ""), ("geometry", "reuse", 1, "portable"), ("geometry", "reuse", 2, ""),
+             ("geometry", "chunks", 1, ""), ("geometry", "chunks", 1, "portable"), ("flux", "fresh", 1, ""),
+             ("occlusion", "fresh", 1, ""), ("cells", "", 1, "")]
     rows = []
-    for case, mode, threads in cases:
+    for case, mode, threads, core in cases:
         name = "reuse" if mode == "reuse" else case
         name = "chunk" if mode == "chunks" else name
-        r = run_isolated(dict(case=name, threads=threads, nspec=nspec, min_seconds=min_s))
+        r = run_isolated(dict(case=name, threads=threads, nspec=nspec, min_seconds=min_s, core=core))
         r.update(case=case, outputs=mode, threads=threads)
         rows.append(r)
         if "error" in r:
@@ -186,7 +197,7 @@ def main(argv=None) -> int:
         else:
             line = (f"{r['pairs_per_second_wall']:14,.0f} pairs/s wall  {r['pairs_per_cpu_second']:14,.0f} per CPU-s  "
                     f"{r['ns_per_pair_cpu']:7.1f} ns/pair CPU  {r['pairs_per_spectrum']:8.0f} cells/spectrum")
-        print(f"{case:10s} {mode:6s} {threads}t  {line}  peak {r.get('peak_rss_mb', float('nan')):6.0f} MB", flush=True)
+        print(f"{case:10s} {mode:6s} {threads}t {r.get('core', ''):8s}  {line}  peak {r.get('peak_rss_mb', float('nan')):6.0f} MB", flush=True)
     machine = dict(machine=platform.machine(), system=platform.system(), python=platform.python_version(),
                    cores=os.cpu_count(), date=time.strftime("%Y-%m-%d %H:%M"), loadavg=os.getloadavg(),
                    note="shared machine under load: CPU time per call is the figure to compare", run_note=args.note)
@@ -207,10 +218,10 @@ def markdown(rows, machine, nspec) -> str:
              f"MOLA 4 ppd, 0.5 deg cells, {nspec} 20-s spectra of a {PERI:g} x {APO:g} km orbit, "
              f"geometry with cos psi >= {ZETA}. Shared machine under load: compare the CPU-time columns. "
              f"{machine.get('run_note', '')}", "",
-             "| case | outputs | threads | pairs/spectrum | pairs/s (wall) | pairs per CPU-s | ns/pair (CPU) | "
-             "peak RSS (MB) |", "|---|---|---|---|---|---|---|---|"]
+             "| case | outputs | threads | core | pairs/spectrum | pairs/s (wall) | pairs per CPU-s | ns/pair (CPU) | "
+             "peak RSS (MB) |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        head = f"| {r['case']} | {r['outputs']} | {r['threads']} |"
+        head = f"| {r['case']} | {r['outputs']} | {r['threads']} | {r.get('core', '')} |"
         if "error" in r:
             lines.append(f"{head} {r['error']} | | | | |")
         elif r["case"] == "cells":

@@ -283,7 +283,7 @@ def test_the_runtime_flags_are_needed(tmp_path):
     assert _cli_flags("--pkg-config-path") == str(pc.parent)
     none = subprocess.run([sys.executable, "-m", "planet_intersect.cli", "config"], capture_output=True, text=True,
                           timeout=60)
-    assert none.returncode == 2 and "one of the arguments --libs --cflags --pkg-config-path is required" in none.stderr
+    assert none.returncode == 2 and "one of the arguments --libs --cflags --pkg-config-path --core is required" in none.stderr
 
 
 def test_pkg_config_prints_the_same_link_line(tmp_path):

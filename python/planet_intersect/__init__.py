@@ -16,6 +16,7 @@ from .dem import DEM, read_header
 from .geometry import detector_los, spheroid_radius, ray_spheroid_intersection
 from .intersect import IntersectResult, intersect
 from . import legacy_config  # link flags of the legacy FORTRAN77 library
+from ._ext import core_info  # which compiled core (portable or x86-64-v3) is in use
 from .footprint import (CellTable, FootprintResult, airmass, footprint, scale_height,  # GRS footprint
                         spacecraft_frame, spacecraft_quaternion)
 from .geodetic import ecef_to_geodetic, geodetic_to_ecef
@@ -27,7 +28,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "DEM", "DEMError", "IntersectResult", "RAY_STATUS", "RayStatus", "detector_los", "intersect",
-    "ray_spheroid_intersection", "read_header", "spheroid_radius", "legacy_paths",
+    "ray_spheroid_intersection", "read_header", "spheroid_radius", "legacy_paths", "core_info",
     "CellTable", "FootprintResult", "airmass", "footprint", "scale_height", "spacecraft_frame",
     "spacecraft_quaternion",
     "GeodeticDSM", "DSMResult", "DSMStatus", "DSMError", "DSM_RAY_STATUS", "ecef_to_geodetic", "geodetic_to_ecef",

@@ -771,12 +771,16 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--product", default="megr90n000cb", choices=("megr90n000cb", "megr90n000eb"),
                    help="megr90n000cb: 4 pixels/degree (2 MB); megr90n000eb: 16 pixels/degree (33 MB)")
     f.set_defaults(func=_fetch_mola)
-    c = sub.add_parser("config", help="link flags of the legacy FORTRAN77 library (pkg-config style)")
+    c = sub.add_parser("config", help="link flags of the legacy FORTRAN77 library (pkg-config style), "
+                                      "or which compiled core is in use")
     what = c.add_mutually_exclusive_group(required=True)
     what.add_argument("--libs", action="store_true", help="the link flags, for after the program's sources")
     what.add_argument("--cflags", action="store_true", help="the compile flags (empty: implicit interfaces)")
     what.add_argument("--pkg-config-path", action="store_true",
                       help="the folder of planet-intersect-legacy.pc, for PKG_CONFIG_PATH")
+    what.add_argument("--core", action="store_true",
+                      help="which compiled core the package uses (_core, or _core_v3 on x86-64-v3 CPUs) "
+                           "and why; PI_CORE=portable|v3|auto chooses")
     c.set_defaults(func=_config)
     _add_footprint_parser(sub)
     _add_simulate_parser(sub)
@@ -786,7 +790,12 @@ def _parser() -> argparse.ArgumentParser:
 def _config(args) -> int:
     from . import legacy_config
 
-    if args.pkg_config_path:
+    if args.core:
+        from ._ext import core_info
+
+        info = core_info()
+        print(f"{info['module']}: {info['reason']}")
+    elif args.pkg_config_path:
         print(legacy_config.pc_file().parent)
     else:
         print(legacy_config.link_flags() if args.libs else legacy_config.compile_flags())

@@ -385,7 +385,7 @@ class DEM:
         computed once and kept, so that each ``io="mmap"`` call does not re-read
         the two polar rows (92,160 records at 128 ppd)."""
         if self._map_poles is None:
-            from . import _core
+            from ._ext import core as _core
 
             poles, stat = _core.core_map_poles(self.mapped_bytes(), self.radii.dtype.itemsize, self.ppd,
                                                self.rmax, self.f, self.re)
@@ -511,7 +511,7 @@ class DEM:
         """Bilinear DEM radius at planetocentric latitude/east longitude (degrees),
         eqs. 2-12 (the paper's zdem_radius): longitude wraps, and within half a
         pixel of a pole the pole carries the mean of the adjacent row."""
-        from . import _core
+        from ._ext import core as _core
 
         lat = _real_array(lat, "lat")
         lon = _real_array(lon, "lon")

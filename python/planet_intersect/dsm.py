@@ -214,7 +214,7 @@ class GeodeticDSM:
 
     def height(self, lat, lon) -> np.ndarray:
         """Surface height H at geodetic (lat, lon) in degrees (NaN outside or over no-data)."""
-        from . import _core
+        from ._ext import core as _core
 
         lat, lon = np.broadcast_arrays(np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64))
         shape = lat.shape
@@ -486,7 +486,7 @@ def _trace_raw(dsm: GeodeticDSM, s, l, method: str, threads):
     simulation: (n, s, l, p, q, scal, status, nsteps) as the core returns them
     (p, q (3, n); scal (10, n): lat, lon (radians), height, surface height,
     distance, incidence (radians), event lat, lon, height, distance)."""
-    from . import _core
+    from ._ext import core as _core
     from .intersect import FAR_LIMIT, _unit_scaled, as_vectors, check_threads
 
     s = as_vectors(s, "s")

@@ -930,7 +930,7 @@ def _run_kernel(cells: CellTable, R: np.ndarray, frames: np.ndarray, zeta: np.nd
                 ascale: float = 1.0, buffers: "_PairBuffers | None" = None):
     """Both kernel passes; returns (idx, d, gsh, scal, buffers). The angles come out times
     ``ascale`` (180/pi: degrees). ``buffers`` is reused when it holds enough pairs."""
-    from . import _core
+    from ._ext import core as _core
 
     cd = math.radians(cells.cell_deg)
     u = cells.u
@@ -1252,7 +1252,7 @@ def orbit_study(cells: CellTable | None = None, periapsis_alt: float = 387.0, ap
     notes = float(visible_cap_area(454.4, 3397.0) / visible_cap_area(385.6, 3397.0) - 1)
     counts = {}
     if cells is not None:
-        from . import _core
+        from ._ext import core as _core
 
         for z in zetas:
             c, status, stat = _core.core_footprint_count(R.T, np.full(n, float(z)), cells.nrow, cells.ncol,

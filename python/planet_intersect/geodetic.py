@@ -60,7 +60,7 @@ def ecef_to_geodetic(p, a: float = WGS84_A, f: float = WGS84_F, method: str = "e
         Geodetic latitude (deg), east longitude (deg, [-180, 180)), height above
         the ellipsoid (units of ``a``; negative inside).
     """
-    from . import _core
+    from ._ext import core as _core
 
     a, f = check_ellipsoid(a, f)
     if method not in _METHODS:
@@ -98,7 +98,7 @@ def geodetic_to_ecef(lat, lon, h, a: float = WGS84_A, f: float = WGS84_F) -> np.
     -------
     p : array (3,) for scalar input, else (N, 3)
     """
-    from . import _core
+    from ._ext import core as _core
 
     a, f = check_ellipsoid(a, f)
     try:

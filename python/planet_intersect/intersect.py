@@ -247,7 +247,7 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
     DEMError
         The DEM file cannot be used (mode 1).
     """
-    from . import _core
+    from ._ext import core as _core
     from .dsm import GeodeticDSM, intersect_dsm
 
     if isinstance(dem, GeodeticDSM):                     # the Shin & Park system (dsm.py)

@@ -505,7 +505,7 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
     -------
     SimResult
     """
-    from . import _core
+    from ._ext import core as _core
     from .dsm import _trace_raw
     from .geodetic import _wrap180
     from .intersect import _choice, check_threads
