@@ -119,10 +119,15 @@ def geodetic_to_ecef(lat, lon, h, a: float = WGS84_A, f: float = WGS84_F) -> np.
 
 def _wrap180(lon_deg):
     """Longitudes (deg) into [-180, 180)."""
-    x = np.asarray(lon_deg, dtype=np.float64)
-    out = (x >= -180.0) & (x < 180.0)
-    if out.all():                          # the usual case: nothing to wrap (np.mod is slow on NaN)
-        return x.copy()
-    w = np.mod(x + 180.0, 360.0) - 180.0
-    w = np.where(w >= 180.0, w - 360.0, w)
-    return np.where(out, x, w)
+    x = np.array(lon_deg, dtype=np.float64)            # a copy
+    out = ~((x >= -180.0) & (x < 180.0))
+    if not out.any():                      # the usual case: nothing to wrap
+        return x
+    # only the values to wrap go through np.mod (slow on NaN: an all-NaN event_lon
+    # column cost 1.6 ms per 10,000 rays); NaN stays NaN, +-Inf becomes NaN
+    flat = x.reshape(-1)                   # a view (x is a fresh contiguous array), 0-d included
+    k = np.flatnonzero((out & np.isfinite(x)).reshape(-1))
+    w = np.mod(flat[k] + 180.0, 360.0) - 180.0
+    flat[k] = np.where(w >= 180.0, w - 360.0, w)
+    flat[np.isinf(flat)] = np.nan
+    return x
