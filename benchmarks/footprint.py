@@ -102,6 +102,8 @@ def measure(spec: dict) -> dict:
                     cells=len(pi.CellTable(mola_dem(MOLA), 0.5)), peak_rss_mb=peak_rss_mb())
     dem, cells, R, v = scene(nspec)
     kw = dict(airmass_model=None, threads=threads)
+    if case == "alternate":
+        return alternate(cells, R, v, dict(kw, zeta=ZETA), spec["rounds"])
     if case == "flux":
         kw["flux_fraction"] = 0.5
     else:
@@ -153,6 +155,51 @@ def measure(spec: dict) -> dict:
     return out
 
 
+def alternate(cells, R, v, kw, rounds: int) -> dict:
+    """The two builds of the core in one process, call by call in turn (fresh
+    outputs, then reused outputs, each build in each round): the ratio of their
+    CPU times per round does not see the machine's speed changing between
+    processes, which moves single measurements here by +-20 %."""
+    import importlib
+
+    from planet_intersect import _ext
+    from planet_intersect.footprint import footprint
+
+    if not _ext._v3_built():
+        return {"error": "no _core_v3 in this installation"}
+    flags = _ext.cpu_flags()
+    if flags is None or _ext.missing_v3(flags):
+        return {"error": "this CPU cannot run the x86-64-v3 build"}
+    mods = {n: importlib.import_module("planet_intersect." + n) for n in ("_core", "_core_v3")}
+    cpu = {n: {"fresh": [], "reuse": []} for n in mods}
+    outs = {}
+    saved = _ext._chosen
+    try:
+        for n in mods:                                   # warm-up, and the outputs to reuse
+            _ext._chosen = (mods[n], n, "benchmark")
+            outs[n] = footprint(cells, R, v, **kw)
+        for _ in range(rounds):
+            for n in mods:
+                _ext._chosen = (mods[n], n, "benchmark")
+                c = time.process_time()
+                footprint(cells, R, v, **kw)
+                cpu[n]["fresh"].append(time.process_time() - c)
+                c = time.process_time()
+                footprint(cells, R, v, out=outs[n], **kw)
+                cpu[n]["reuse"].append(time.process_time() - c)
+    finally:
+        _ext._chosen = saved
+    npairs = len(outs["_core"])
+    out = dict(pairs=npairs, spectra=len(R), rounds=rounds, peak_rss_mb=peak_rss_mb())
+    for mode in ("fresh", "reuse"):
+        a, b = np.array(cpu["_core"][mode]), np.array(cpu["_core_v3"][mode])
+        out[mode] = dict(portable=npairs / float(np.median(a)), v3=npairs / float(np.median(b)),
+                         portable_q25_q75=[npairs / float(np.percentile(a, 75)), npairs / float(np.percentile(a, 25))],
+                         v3_q25_q75=[npairs / float(np.percentile(b, 75)), npairs / float(np.percentile(b, 25))],
+                         ratio_median=float(np.median(a / b)), ratio_min=float(np.min(a / b)))
+    return out
+
+
 def run_isolated(spec: dict) -> dict:
     env = dict(os.environ)
     if spec.get("core"):
@@ -184,6 +231,15 @@ def main(argv=None) -> int:
              ("geometry", "chunks", 1, ""), ("geometry", "chunks", 1, "portable"), ("flux", "fresh", 1, ""),
              ("occlusion", "fresh", 1, ""), ("cells", "", 1, "")]
     rows = []
+    alt = run_isolated(dict(case="alternate", nspec=nspec, rounds=8 if args.quick else 30))
+    if "error" in alt:
+        print(f"alternating builds: {alt['error']}", flush=True)
+    else:
+        for mode in ("fresh", "reuse"):
+            a = alt[mode]
+            print(f"alternating builds, {mode:5s} outputs, {alt['rounds']} rounds: portable {a['portable']:14,.0f}, "
+                  f"x86-64-v3 {a['v3']:14,.0f} pairs per CPU-s (medians); v3 faster by {a['ratio_median']:.2f}x "
+                  f"(least {a['ratio_min']:.2f}x)", flush=True)
     for case, mode, threads, core in cases:
         name = "reuse" if mode == "reuse" else case
         name = "chunk" if mode == "chunks" else name
@@ -206,13 +262,14 @@ def main(argv=None) -> int:
         name += "-" + args.label
     out = HERE / "results"
     out.mkdir(exist_ok=True)
-    (out / f"{name}.json").write_text(json.dumps(dict(machine=machine, nspec=nspec, zeta=ZETA, rows=rows), indent=1))
-    (out / f"{name}.md").write_text(markdown(rows, machine, nspec))
+    (out / f"{name}.json").write_text(json.dumps(dict(machine=machine, nspec=nspec, zeta=ZETA, rows=rows,
+                                                      alternate=alt), indent=1))
+    (out / f"{name}.md").write_text(markdown(rows, machine, nspec, alt))
     print(f"wrote {out / (name + '.md')}")
     return 0
 
 
-def markdown(rows, machine, nspec) -> str:
+def markdown(rows, machine, nspec, alt=None) -> str:
     lines = [f"# Footprint benchmark ({machine['date']}, {machine['machine']}, {machine['cores']} cores, "
              f"Python {machine['python']}, load average {machine['loadavg'][0]:.1f})", "",
              f"MOLA 4 ppd, 0.5 deg cells, {nspec} 20-s spectra of a {PERI:g} x {APO:g} km orbit, "
@@ -233,6 +290,18 @@ def markdown(rows, machine, nspec) -> str:
                 extra = f" ({r['kept_per_spectrum']:,.0f} kept)"
             lines.append(f"{head} {r['pairs_per_spectrum']:,.0f}{extra} | {r['pairs_per_second_wall']:,.0f} | "
                          f"{r['pairs_per_cpu_second']:,.0f} | {r['ns_per_pair_cpu']:.1f} | {r['peak_rss_mb']:.0f} |")
+    if alt and "error" not in alt:
+        lines += ["", f"Both builds in one process, call by call in turn ({alt['rounds']} rounds, 1 thread, "
+                  f"{alt['pairs']:,} pairs per call; medians of CPU time per call, quartiles in brackets):", "",
+                  "| outputs | portable `_core` (pairs per CPU-s) | x86-64-v3 `_core_v3` | v3 / portable per round, "
+                  "median (least) |", "|---|---|---|---|"]
+        for mode in ("fresh", "reuse"):
+            a = alt[mode]
+            lines.append(f"| {mode} | {a['portable']:,.0f} ({a['portable_q25_q75'][0]:,.0f}-"
+                         f"{a['portable_q25_q75'][1]:,.0f}) | **{a['v3']:,.0f}** ({a['v3_q25_q75'][0]:,.0f}-"
+                         f"{a['v3_q25_q75'][1]:,.0f}) | {a['ratio_median']:.2f} ({a['ratio_min']:.2f}) |")
+    elif alt:
+        lines += ["", f"Both builds in turn: {alt['error']}"]
     return "\n".join(lines) + "\n"
 
 
