@@ -195,6 +195,8 @@ contains
       cj0 = ceiling(u0 - 0.5_dp); cj1 = floor(u1 + 0.5_dp)
       if (ci0 == ci1 .and. cj0 == cj1) then
         cell = 1
+      else if (ci1 - ci0 <= 1 .and. cj1 - cj0 <= 1 .and. flat_cells(dsm, ci0, ci1, cj0, cj1, hb)) then
+        cell = 1                                          ! 2 or 4 cells of one height: one flat top
       else if (ci1 - ci0 + cj1 - cj0 == 1) then
         ! one wall between: split just before its estimated crossing (only speed depends on it)
         ! (a crossing outside the segment: only the widening straddles, at the nearer end)
@@ -219,6 +221,25 @@ contains
       end if
     end if
   end subroutine seg_bounds
+
+  !> True when every cell of rows ci0..ci1, columns cj0..cj1 (inside the
+  !> grid) has the height hb ("nearest": the surface is then hb all over
+  !> their union, shared boundaries included).
+  pure function flat_cells(dsm, ci0, ci1, cj0, cj1, hb) result(flat)
+    type(dsm_t), intent(in) :: dsm
+    integer, intent(in) :: ci0, ci1, cj0, cj1
+    real(dp), intent(in) :: hb
+    logical :: flat
+    integer :: i, j
+    flat = .false.
+    if (.not. (ci0 >= 0 .and. cj0 >= 0 .and. ci1 <= dsm%nrows - 1 .and. cj1 <= dsm%ncols - 1)) return
+    do i = ci0, ci1
+      do j = cj0, cj1
+        if (.not. (dsm%hgt(j + 1, i + 1) == hb)) return
+      end do
+    end do
+    flat = .true.
+  end function flat_cells
 
   !> Within one bilinear cell with data at its four nodes: the first r in
   !> [pa, pb] where the lower bound of h (the larger tangent, a line on each
