@@ -55,6 +55,10 @@ module pi_dsm_fast
   !> to a; its Newton stops at a step of 1e-15 (|t| + a^2), then rounding of a
   !> few ulps of a) and latitude (radians; atan2 of the foot-point gradient)
   real(dp), parameter :: fast_hmarg = 1.0e-14_dp, fast_latmarg = 1.0e-14_dp
+  !> where a segment is split (fraction of its length from its start; only
+  !> speed depends on it: 0.35 gave the fewest segments on the building and
+  !> city rays, 0.5 ~7 % more, 0.15 or 0.65 ~17 % more)
+  real(dp), parameter :: fast_split = 0.35_dp
   !> segment limit per ray and subdivision stack depth
   integer, parameter :: fast_maxseg = 20000, fast_depth = 128
   !> outcomes of a piece search
@@ -70,10 +74,13 @@ module pi_dsm_fast
     real(dp) :: r, u, v
   end type lpt_t
 
-  !> a piece [A, B]: its exact ends and the latitude widening dv (grid rows)
+  !> a piece [A, B]: its exact ends and the latitude widening dv (grid rows);
+  !> set by piece_ends: 1 / (B - A), the tangents' kink rk (+huge: none) and
+  !> their value there, the ends' falling tangents' 1 / h' (0: not falling)
   type :: piece_t
     type(xpt_t) :: a, b
     real(dp) :: dv, du, hmarg
+    real(dp) :: ilen = 0, rk = 0, tk = 0, ida = 0, idb = 0
   end type piece_t
 
 contains
@@ -115,7 +122,7 @@ contains
     real(dp), intent(in) :: r
     type(lpt_t), intent(out) :: q
     real(dp) :: w
-    w = (r - pc%a%r) / (pc%b%r - pc%a%r)
+    w = (r - pc%a%r) * pc%ilen
     q%u = pc%a%u + w * (pc%b%u - pc%a%u)
     q%v = pc%a%v + w * (pc%b%v - pc%a%v)
     q%r = r
@@ -136,13 +143,9 @@ contains
   pure function h_lower(pc, ra, rb) result(hlow)
     type(piece_t), intent(in) :: pc
     real(dp), intent(in) :: ra, rb
-    real(dp) :: hlow, rk, den
+    real(dp) :: hlow
     hlow = min(tmax(ra), tmax(rb))
-    den = pc%a%dh - pc%b%dh
-    if (den < 0.0_dp) then                                  ! the tangents cross
-      rk = (pc%b%h - pc%a%h + pc%a%dh * pc%a%r - pc%b%dh * pc%b%r) / den
-      if (rk > ra .and. rk < rb) hlow = min(hlow, tmax(rk))
-    end if
+    if (pc%rk > ra .and. pc%rk < rb) hlow = min(hlow, pc%tk)   ! the tangents' kink (piece_ends)
     hlow = hlow - pc%hmarg - 1.0e-13_dp * abs(hlow)
   contains
     pure function tmax(r) result(t)
@@ -161,8 +164,8 @@ contains
     real(dp) :: rc, lev
     lev = hb + pc%hmarg + 1.0e-13_dp * (abs(hb) + abs(pc%a%h) + abs(pc%b%h))
     rc = r0
-    if (pc%a%dh < 0.0_dp) rc = max(rc, pc%a%r + (lev - pc%a%h) / pc%a%dh - 1.0e-3_dp * refine_tol)
-    if (pc%b%dh < 0.0_dp) rc = max(rc, pc%b%r + (lev - pc%b%h) / pc%b%dh - 1.0e-3_dp * refine_tol)
+    if (pc%ida < 0.0_dp) rc = max(rc, pc%a%r + (lev - pc%a%h) * pc%ida - 1.0e-3_dp * refine_tol)
+    if (pc%idb < 0.0_dp) rc = max(rc, pc%b%r + (lev - pc%b%h) * pc%idb - 1.0e-3_dp * refine_tol)
   end function clear_prefix
 
   !> Bounds of the segment [pa, pb] of piece pc (as pi_dsm_exact's
@@ -457,6 +460,28 @@ contains
     rs = x%r
   end subroutine fast_entry
 
+  !> Set the piece's ends and what depends on them alone (piece_t).
+  pure subroutine piece_ends(xa, xb, pc)
+    type(xpt_t), intent(in) :: xa, xb
+    type(piece_t), intent(inout) :: pc
+    real(dp) :: den
+    pc%a = xa
+    pc%b = xb
+    pc%ilen = 0.0_dp
+    if (xb%r > xa%r) pc%ilen = 1.0_dp / (xb%r - xa%r)
+    pc%rk = huge(1.0_dp)
+    pc%tk = huge(1.0_dp)
+    den = xa%dh - xb%dh
+    if (den < 0.0_dp) then                                  ! the tangents cross
+      pc%rk = (xb%h - xa%h + xa%dh * xa%r - xb%dh * xb%r) / den
+      pc%tk = max(xa%h + xa%dh * (pc%rk - xa%r), xb%h + xb%dh * (pc%rk - xb%r))
+    end if
+    pc%ida = 0.0_dp
+    pc%idb = 0.0_dp
+    if (xa%dh < 0.0_dp) pc%ida = 1.0_dp / xa%dh
+    if (xb%dh < 0.0_dp) pc%idb = 1.0_dp / xb%dh
+  end subroutine piece_ends
+
   !> Build piece [xa, xb]: its latitude widening in grid rows (ok = .false.
   !> when the bound does not apply or exceeds fast_maxdv).
   pure subroutine make_piece(dsm, s, l, xa, xb, pc, ok)
@@ -466,8 +491,7 @@ contains
     type(piece_t), intent(out) :: pc
     logical, intent(out) :: ok
     real(dp) :: mmin, den, rho, kap, cm, psi2, len
-    pc%a = xa
-    pc%b = xb
+    call piece_ends(xa, xb, pc)
     pc%dv = huge(1.0_dp)
     pc%hmarg = fast_hmarg * dsm%a
     ok = .false.
@@ -795,7 +819,7 @@ contains
         outcome = out_declined
         return
       end if
-      rm = 0.5_dp * (pa%r + pb%r)
+      rm = pa%r + fast_split * (pb%r - pa%r)
       if (rsplit > 0.0_dp) then                         ! around the wall's band: one cell on each side
         if (rsplit - wm > pa%r + 0.125_dp * refine_tol) then
           rm = rsplit - wm
