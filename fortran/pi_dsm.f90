@@ -20,7 +20,7 @@
 module pi_dsm
   use pi_kinds, only: dp
   use pi_vector, only: pi
-  use pi_ieee, only: ieee_is_nan => is_nan, nan_dp
+  use pi_ieee, only: nan_dp
   implicit none
   private
 
@@ -339,5 +339,13 @@ contains
     real(dp) :: x
     x = nan_dp
   end function ieee_nan
+
+  !> x is NaN (pi_ieee's is_nan, here so that the compiler inlines it: a call
+  !> into another module goes through the shared library's PLT on every cell)
+  elemental function ieee_is_nan(x) result(nan)
+    real(dp), intent(in) :: x
+    logical :: nan
+    nan = x /= x
+  end function ieee_is_nan
 
 end module pi_dsm
