@@ -63,9 +63,10 @@ module pi_dsm_fast
   !> outcomes of a piece search
   integer, parameter :: out_clear = 0, out_decided = 1, out_declined = 2
 
-  !> an exact ray point: r, geodetic lat, lon, h, dh/dr, grid u, v
+  !> an exact ray point: r, geodetic lat, lon, h, dh/dr, grid u, v, the
+  !> ellipsoid normal there (ECR)
   type :: xpt_t
-    real(dp) :: r, lat, lon, h, dh, u, v
+    real(dp) :: r, lat, lon, h, dh, u, v, nx, ny, nz
   end type xpt_t
 
   !> a cheap ray point: r, grid u (exact to rounding), v of the linear latitude model
@@ -89,13 +90,48 @@ contains
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: s(3), l(3), r
     type(xpt_t), intent(out) :: q
-    real(dp) :: p(3), nx, ny, nz
+    real(dp) :: p(3)
     p = s + r * l                                           ! Shin & Park eq. 1
-    call ecr_to_geodetic_nb(p(1), p(2), p(3), dsm%a, dsm%f, q%lat, q%lon, q%h, nx, ny, nz)
-    q%dh = l(1) * nx + l(2) * ny + l(3) * nz                ! dh/dr = l . n
+    call ecr_to_geodetic_nb(p(1), p(2), p(3), dsm%a, dsm%f, q%lat, q%lon, q%h, q%nx, q%ny, q%nz)
+    q%dh = l(1) * q%nx + l(2) * q%ny + l(3) * q%nz          ! dh/dr = l . n
     q%r = r
     call dsm_grid_uv(dsm, q%lat, q%lon, q%u, q%v)
   end subroutine eval_x
+
+  !> The ray point at r from the exact point x a short way before it
+  !> (0 <= r - x%r <= 1e-8 a, ~6 cm on Earth), without a conversion: latitude
+  !> and longitude to first order along the ray (dpsi/dr = (l.north)/(M + h),
+  !> dlambda/dr = (l.east)/((N + h) cos psi); the second-order terms are below
+  !> (3/M^2 + 2/rho^2) d^2/2 ~ 3e-16 rad, under the conversion's own rounding
+  !> margin fast_latmarg), h to first order (h'' <= 1/M_min: <= 3e-10 m) and
+  !> h' with the curvature (1 - h'^2)/(N + h) (error <= d e^2/a: ~1e-10).
+  !> ok = .false. (q not set) when d is out of range or the point is within
+  !> 1e-3 rad of a pole.
+  pure subroutine extrapolate(dsm, l, x, r, q, ok)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: l(3), r
+    type(xpt_t), intent(in) :: x
+    type(xpt_t), intent(out) :: q
+    logical, intent(out) :: ok
+    real(dp) :: d, cp, w, mm, nn, ln, le
+    d = r - x%r
+    cp = sqrt(x%nx**2 + x%ny**2)                            ! cos(latitude)
+    ok = d >= 0.0_dp .and. d <= 1.0e-8_dp * dsm%a .and. cp > 1.0e-3_dp
+    if (.not. ok) return
+    w = 1.0_dp - dsm%e2 * x%nz**2
+    nn = dsm%a / sqrt(w)                                    ! prime vertical radius of curvature
+    mm = nn * (1.0_dp - dsm%e2) / w                         ! meridian radius of curvature
+    ! north = (-sin psi cos lambda, -sin psi sin lambda, cos psi), east = (-sin lambda, cos lambda, 0)
+    ln = (-x%nz * (l(1) * x%nx + l(2) * x%ny)) / cp + l(3) * cp
+    le = (-l(1) * x%ny + l(2) * x%nx) / cp
+    q = x
+    q%r = r
+    q%lat = x%lat + d * ln / (mm + x%h)
+    q%lon = x%lon + d * le / ((nn + x%h) * cp)
+    q%h = x%h + d * x%dh
+    q%dh = x%dh + d * (1.0_dp - x%dh**2) / (nn + x%h)
+    call dsm_grid_uv(dsm, q%lat, q%lon, q%u, q%v)
+  end subroutine extrapolate
 
   !> Exact ray point at r, reusing the piece's exact end when r is one of
   !> them (the same conversion: bit-identical); n counts conversions made.
@@ -672,7 +708,7 @@ contains
     type(xpt_t) :: xc, xd
     type(lpt_t) :: pa, pb, pm, stack(fast_depth)
     real(dp) :: dh, hs, hlow, hb, r, g, dr, hc, rsplit, rm, rstar, rc, cn, eps, wm
-    logical :: found, pok
+    logical :: found, pok, near
     integer :: code, nst, it, cell, sub, cst
     outcome = out_declined
     call make_piece(dsm, s, l, xa, xb, pc, pok)
@@ -771,9 +807,14 @@ contains
           dh = xc%dh
         end do
         if (found) then
-          if (xc%r /= r) then                             ! the last step was below 1e-9: convert there
-            call eval_x(dsm, s, l, r, xc)
-            res%nsteps = res%nsteps + 1
+          if (xc%r /= r) then                             ! the last step was below 1e-9
+            call extrapolate(dsm, l, xc, r, xd, near)     ! (at most ~6 cm: no conversion)
+            if (near) then
+              xc = xd
+            else
+              call eval_x(dsm, s, l, r, xc)               ! convert there
+              res%nsteps = res%nsteps + 1
+            end if
           end if
           call dsm_height(dsm, xc%lat, xc%lon, hs, code)  ! the contract's H there (walls: the larger)
           call fast_hit(s, l, xc, hs, res)
