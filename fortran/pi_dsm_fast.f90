@@ -740,7 +740,7 @@ contains
         end if
         if (rc - pa%r > 0.01_dp * (pb%r - pa%r)) then
           call eval_l(pc, rc, pa)
-          cycle
+          if (cell < 0) cycle
         end if
       end if
       if (level == 2) then                                ! one bilinear cell: the candidate in closed form
