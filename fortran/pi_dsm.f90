@@ -20,7 +20,7 @@
 module pi_dsm
   use pi_kinds, only: dp
   use pi_vector, only: pi
-  use pi_ieee, only: ieee_is_nan => is_nan, nan_dp
+  use pi_ieee, only: nan_dp
   implicit none
   private
 
@@ -285,37 +285,40 @@ contains
   end function bilinear_box_max
 
   !> Largest height over rows i0..i1, columns j0..j1 (0-based, inclusive,
-  !> inside the grid), no-data as +huge: at most 2 x 2 blocks of one pyramid level.
+  !> inside the grid), no-data as +huge: at most 2 x 2 blocks of one pyramid
+  !> level, read without loops (the same values as a loop over the range: a
+  !> corner read twice when the range is one block wide changes no maximum).
   pure function range_max(dsm, i0, i1, j0, j1) result(hb)
     type(dsm_t), intent(in) :: dsm
     integer, intent(in) :: i0, i1, j0, j1
-    real(dp) :: hb, w
-    integer :: span, k, bi, bj, off, nr, nc
-    span = max(i1 - i0, j1 - j0)
+    real(dp) :: hb, w1, w2, w3, w4
+    integer :: span, k, bi0, bi1, bj0, bj1, off, nr, nc
     hb = -huge(1.0_dp)
+    if (i1 < i0 .or. j1 < j0) return
+    span = max(i1 - i0, j1 - j0)
     if (span <= 1) then                                ! at most 2 x 2 cells: read them
-      do bi = i0, i1
-        do bj = j0, j1
-          w = dsm%hgt(bj + 1, bi + 1)
-          if (ieee_is_nan(w)) then
-            hb = huge(1.0_dp)
-            return
-          end if
-          hb = max(hb, w)
-        end do
-      end do
+      w1 = dsm%hgt(j0 + 1, i0 + 1)
+      w2 = dsm%hgt(j1 + 1, i0 + 1)
+      w3 = dsm%hgt(j0 + 1, i1 + 1)
+      w4 = dsm%hgt(j1 + 1, i1 + 1)
+      if (ieee_is_nan(w1) .or. ieee_is_nan(w2) .or. ieee_is_nan(w3) .or. ieee_is_nan(w4)) then
+        hb = huge(1.0_dp)
+      else
+        hb = max(max(w1, w2), max(w3, w4))
+      end if
       return
     end if
     k = bit_size(span) - leadz(span)                   ! 2^k > span: the range touches <= 2 blocks per axis
     k = min(k, dsm%nlev)
     nr = dsm%meta(1, k)
     nc = dsm%meta(2, k)
-    off = dsm%meta(3, k)
-    do bi = ishft(i0, -k), min(ishft(i1, -k), nr - 1)
-      do bj = ishft(j0, -k), min(ishft(j1, -k), nc - 1)
-        hb = max(hb, dsm%pyr(off + bi * nc + bj + 1))
-      end do
-    end do
+    off = dsm%meta(3, k) + 1
+    bi0 = ishft(i0, -k)
+    bi1 = min(ishft(i1, -k), nr - 1)
+    bj0 = ishft(j0, -k)
+    bj1 = min(ishft(j1, -k), nc - 1)
+    hb = max(max(dsm%pyr(off + bi0 * nc + bj0), dsm%pyr(off + bi0 * nc + bj1)), &
+             max(dsm%pyr(off + bi1 * nc + bj0), dsm%pyr(off + bi1 * nc + bj1)))
   end function range_max
 
   !> Cell sides in metres (units of a) at geodetic latitude lat: the meridian
@@ -336,5 +339,13 @@ contains
     real(dp) :: x
     x = nan_dp
   end function ieee_nan
+
+  !> x is NaN (pi_ieee's is_nan, here so that the compiler inlines it: a call
+  !> into another module goes through the shared library's PLT on every cell)
+  elemental function ieee_is_nan(x) result(nan)
+    real(dp), intent(in) :: x
+    logical :: nan
+    nan = x /= x
+  end function ieee_is_nan
 
 end module pi_dsm

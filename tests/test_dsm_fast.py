@@ -232,3 +232,53 @@ def test_etopo20_global(interp):
     frac, counts, n_ref, n_ex = compare(dsm, s, l, min_fast=0.98)
     assert counts.get(HIT, 0) >= 2900
     assert n_ex < 0.8 * n_ref          # the pieces grow with the cells: fewer conversions on coarse grids too
+
+
+@pytest.mark.parametrize("planet", ["earth", "mars"])
+def test_hit_point_fields(city, planet):
+    """The reported hit point against the references' own conversion of s + r l at the
+    reported r: latitude, longitude (1e-13 rad, ~0.6 um), height (1e-8 m) and incidence
+    (1e-9 rad). On "nearest" cells the fast path's Newton reports a point a few cm past its
+    last conversion extrapolated along the ray (first order in lat/lon: skipping or
+    mis-signing that step is off by ~1e-8 rad); Mars checks the ellipsoid's use."""
+    from references.geodesy import ecef_to_geodetic_rad
+    if planet == "earth":
+        a, f = 6378137.0, 1 / 298.257223563
+        dsm = pi.GeodeticDSM.from_array(city["heights"], city["lat_first"], city["lon_first"], city["dlat"],
+                                        city["dlon"], interpolation="nearest")
+        s1, l1 = sd.pushbroom_rays(city, 1500, seed=21)
+        s2, l2 = sd.airborne_rays(city, 1500, seed=22)
+        s, l = np.vstack([s1, s2]), np.vstack([l1, l2])
+    else:
+        a, f = 3396190.0, 1 / 169.894
+        rng = np.random.default_rng(23)
+        h = np.round(rng.uniform(-2000.0, 2000.0, (120, 120)), -2)   # flat blocks of 100 m steps
+        dsm = pi.GeodeticDSM.from_array(h, -30.0, 40.0, 0.002, 0.002, a=a, f=f, interpolation="nearest")
+        lat = rng.uniform(-29.95, -29.77, 3000)
+        lon = rng.uniform(40.02, 40.22, 3000)
+        target = geodetic_to_ecef(lat, lon, np.zeros(3000), a, f)
+        la, lo = np.radians(lat), np.radians(lon)
+        up = np.stack([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)], axis=1)
+        tilt = rng.normal(0, 0.2, (3000, 3))
+        d = up + tilt - (np.einsum("ij,ij->i", tilt, up))[:, None] * up
+        s, l = target + 300e3 * d, -d
+    s = np.ascontiguousarray(s, dtype=np.float64)
+    l = np.ascontiguousarray(l / np.linalg.norm(l, axis=1, keepdims=True))
+    pyr, meta = dsm.pyramid()
+    g = dsm._core_grid()
+    p, q, scal, status, nsteps, stat = _core.core_dsm_trace(*g[:7], g[7], dsm.hmax, dsm.hmin, pyr, meta.T,
+                                                           s.T, l.T, EXACT, 1)
+    assert stat == 0
+    hit = status == HIT
+    assert hit.sum() >= 2900
+    r = scal[4][hit]
+    pt = s[hit] + r[:, None] * l[hit]
+    np.testing.assert_allclose(p.T[hit], pt, rtol=0, atol=1e-9 * a)
+    sphi, cphi, lon, h = ecef_to_geodetic_rad(pt[:, 0], pt[:, 1], pt[:, 2], a, f)
+    dlat = np.abs(np.arctan2(sphi, cphi) - scal[0][hit])
+    dlon = np.abs(np.angle(np.exp(1j * (lon - scal[1][hit]))))
+    assert dlat.max() <= 1e-13 and dlon.max() <= 1e-13, (dlat.max(), dlon.max())
+    assert np.abs(h - scal[2][hit]).max() <= 1e-8
+    n = np.stack([cphi * np.cos(lon), cphi * np.sin(lon), sphi], axis=1)
+    inc = np.arccos(np.clip(-np.einsum("ij,ij->i", l[hit], n), -1.0, 1.0))
+    assert np.abs(inc - scal[5][hit]).max() <= 1e-9
