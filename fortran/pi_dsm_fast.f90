@@ -36,6 +36,7 @@ module pi_dsm_fast
   use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, pt_ok, pt_nodata
   use pi_follow, only: dsm_ray_t, ray_geo, level_crossing_back, ellipsoid_entry, set_hit, set_event, refine_tol
   use pi_geodetic, only: ecr_to_geodetic_nb
+  use pi_ieee, only: ieee_is_nan => is_nan        ! (one test per bilinear cell solve: not in the hot loop)
   implicit none
   private
 
@@ -904,13 +905,5 @@ contains
     pb = stack(nst)
     nst = nst - 1
   end subroutine next_segment
-
-  !> x is NaN (pi_ieee's is_nan, here so that the compiler inlines it: a call
-  !> into another module goes through the shared library's PLT on every cell)
-  elemental function ieee_is_nan(x) result(nan)
-    real(dp), intent(in) :: x
-    logical :: nan
-    nan = x /= x
-  end function ieee_is_nan
 
 end module pi_dsm_fast
