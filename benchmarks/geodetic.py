@@ -20,7 +20,6 @@ floor). rays/s from the median call. Results: benchmarks/results/geodetic*.{json
 from __future__ import annotations
 
 import argparse
-import gzip
 import json
 import os
 import platform
@@ -38,18 +37,11 @@ ETOPO = SHARED / "earth_etopo20"
 
 
 def etopo20() -> dict | None:
-    """The ETOPO20 grid as a global DSM grid (1080 unique columns, south row first)."""
-    if not (ETOPO / "etopo20data.gz").exists():
-        return None
-    with gzip.open(ETOPO / "etopo20data.gz", "rt") as fh:
-        z = np.loadtxt(fh)[:, :1080]
-    with gzip.open(ETOPO / "etopo20lats.gz", "rt") as fh:
-        lats = np.loadtxt(fh)
-    with gzip.open(ETOPO / "etopo20lons.gz", "rt") as fh:
-        lons = np.loadtxt(fh)
-    from planet_intersect.geodetic import WGS84_A, WGS84_F
-    return dict(heights=z, lat_first=float(lats[0]), lon_first=float(lons[0]), dlat=float(lats[1] - lats[0]),
-                dlon=float(lons[1] - lons[0]), a=WGS84_A, f=WGS84_F)
+    """The ETOPO20 grid as a global DSM grid (tests/references/earth_data.py), or None."""
+    sys.path.insert(0, str(REPO / "tests"))
+    from references.earth_data import etopo20_grid
+
+    return etopo20_grid(ETOPO)
 
 
 def make_scene(name: str, n: int, nrays: int):

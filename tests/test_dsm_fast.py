@@ -13,7 +13,6 @@ the fast path answers.
 
 from __future__ import annotations
 
-import gzip
 import os
 from pathlib import Path
 
@@ -216,14 +215,11 @@ ETOPO = SHARED / "earth_etopo20"
 def test_etopo20_global(interp):
     """Real data: the global ETOPO20 grid (20', 1080 columns covering 360 deg, heights from
     -10 km to +6 km: slabs ~16 km long, cells ~37 km), rays from 500-700 km, 0-30 deg off nadir."""
-    with gzip.open(ETOPO / "etopo20data.gz", "rt") as fh:
-        z = np.loadtxt(fh)[:, :1080]
-    with gzip.open(ETOPO / "etopo20lats.gz", "rt") as fh:
-        lats = np.loadtxt(fh)
-    with gzip.open(ETOPO / "etopo20lons.gz", "rt") as fh:
-        lons = np.loadtxt(fh)
-    dsm = pi.GeodeticDSM.from_array(z, float(lats[0]), float(lons[0]), float(lats[1] - lats[0]),
-                                    float(lons[1] - lons[0]), interpolation=interp)
+    from references.earth_data import etopo20_grid
+
+    g = etopo20_grid(ETOPO)
+    dsm = pi.GeodeticDSM.from_array(g["heights"], g["lat_first"], g["lon_first"], g["dlat"], g["dlon"],
+                                    interpolation=interp)
     rng = np.random.default_rng(7)
     n = 3000
     lat = np.degrees(np.arcsin(rng.uniform(-0.97, 0.97, n)))

@@ -281,14 +281,8 @@ class GeodeticDSM:
 
     @classmethod
     def _read_npz(cls, path, nodata, geoid, interpolation, a, f, hmax):
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                d = {k: z[k] for k in z.files}
-        except Exception as exc:  # noqa: BLE001 - any unreadable file
-            raise DSMError(f"DSM file {path}: cannot be read as .npz ({exc})") from None
-        missing = [k for k in ("heights", "lat_first", "lon_first", "dlat", "dlon") if k not in d]
-        if missing:
-            raise DSMError(f"DSM file {path}: missing arrays {missing} (need heights, lat_first, lon_first, dlat, dlon)")
+        d = _npz_arrays(path, ("heights", "lat_first", "lon_first", "dlat", "dlon"), "DSM file", DSMError,
+                        hint=" (need heights, lat_first, lon_first, dlat, dlon)")
         interp = interpolation or (str(d["interpolation"]) if "interpolation" in d else "bilinear")
         try:
             dsm = cls.from_array(d["heights"], float(d["lat_first"]), float(d["lon_first"]), float(d["dlat"]),
@@ -479,6 +473,20 @@ def intersect_dsm(dsm: GeodeticDSM, s, l, method: str = "following", threads: in
                 la, lo, _ = ecef_to_geodetic(pe, dsm.a, dsm.f)
                 res.ellipsoid_lat[k], res.ellipsoid_lon[k] = la, lo
     return res
+
+
+def _npz_arrays(path, required, what: str, error=ValueError, hint: str = "") -> dict:
+    """The arrays of a .npz file (no pickles) as a dict; ``error`` naming ``what``
+    and the path when it cannot be read or lacks one of ``required``."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            d = {k: z[k] for k in z.files}
+    except Exception as exc:  # noqa: BLE001 - any unreadable file
+        raise error(f"{what} {path}: cannot be read as .npz ({exc})") from None
+    missing = [k for k in required if k not in d]
+    if missing:
+        raise error(f"{what} {path}: missing arrays {missing}{hint}")
+    return d
 
 
 def _trace_raw(dsm: GeodeticDSM, s, l, method: str, threads):

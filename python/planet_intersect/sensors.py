@@ -332,6 +332,19 @@ class Sensor:
     def npixels(self) -> int:
         return self.shape[1]
 
+    @property
+    def l(self) -> np.ndarray:
+        """Lines of sight (nlines, npixels, 3), ECR: the user's array where one was
+        given (``_l``), else built on access from the sensor's own geometry (an
+        orbit pushbroom, a pinhole camera: ``_directions``)."""
+        if getattr(self, "_l", None) is None:
+            return self._directions(0, self.nlines).reshape(self.nlines, self.npixels, 3)
+        return self._l
+
+    def _directions(self, k0: int, k1: int) -> np.ndarray:
+        # unit directions of lines k0..k1-1, (n, 3); sensors with a model of their own override it
+        return self.rays(k0, k1)[1]
+
     def _check_block(self, k0: int, k1: int) -> tuple[int, int]:
         k0, k1 = int(k0), int(k1)
         if not 0 <= k0 <= k1 <= self.nlines:
@@ -506,13 +519,6 @@ class Pushbroom(Sensor):
             raise ValueError(f"an image needs at least one line and one pixel, got l of shape {self._l.shape}")
         self.shape = (self._l.shape[0], self._l.shape[1])
         self._m = self._d = None
-
-    @property
-    def l(self) -> np.ndarray:
-        """Lines of sight (nlines, npixels, 3), ECR (built on access for an orbit sensor)."""
-        if self._l is None:
-            return self._directions(0, self.nlines).reshape(self.nlines, self.npixels, 3)
-        return self._l
 
     def _directions(self, k0, k1):
         # unit ECR directions of lines k0..k1-1: l[k, m] = M_k d_m (orbital frame x attitude x detector)
@@ -823,13 +829,6 @@ class FrameCamera(Sensor):
             raise ValueError(f"an image needs at least one row and one column, got l of shape {self._l.shape}")
         self.shape = (self._l.shape[0], self._l.shape[1])
         self.axes = None
-
-    @property
-    def l(self) -> np.ndarray:
-        """Lines of sight (nrows, ncols, 3), ECR (built on access for a pinhole camera)."""
-        if self._l is None:
-            return self._directions(0, self.nlines).reshape(self.nlines, self.npixels, 3)
-        return self._l
 
     def _directions(self, k0, k1):
         # pinhole: z_c + (m - cx) p x_c + (k - cy) p y_c, unit

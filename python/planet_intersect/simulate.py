@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .dsm import DSMStatus, GeodeticDSM, _number
+from .dsm import DSMStatus, GeodeticDSM, _npz_arrays, _number
 from .geodetic import geodetic_to_ecef
 
 __all__ = ["OrthoImage", "SimResult", "simulate_image", "SURFACE_CODES"]
@@ -180,14 +180,7 @@ class OrthoImage:
         if not path.is_file():
             raise FileNotFoundError(f"ortho-image file {path}: no such file")
         if path.suffix.lower() == ".npz":
-            try:
-                with np.load(path, allow_pickle=False) as z:
-                    d = {k: z[k] for k in z.files}
-            except Exception as exc:  # noqa: BLE001 - any unreadable file
-                raise ValueError(f"ortho-image file {path}: cannot be read as .npz ({exc})") from None
-            missing = [k for k in ("values", "lat_first", "lon_first", "dlat", "dlon") if k not in d]
-            if missing:
-                raise ValueError(f"ortho-image file {path}: missing arrays {missing}")
+            d = _npz_arrays(path, ("values", "lat_first", "lon_first", "dlat", "dlon"), "ortho-image file")
             try:
                 o = cls.from_array(d["values"], float(d["lat_first"]), float(d["lon_first"]), float(d["dlat"]),
                                    float(d["dlon"]), nodata=nodata)
