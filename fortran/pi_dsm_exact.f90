@@ -34,6 +34,7 @@ module pi_dsm_exact
                        set_hit, set_event, refine_tol
   use pi_geodetic, only: ecr_to_geodetic
   use pi_dsm_fast, only: fast_ray
+  use pi_dsm_sweep, only: sweep_fan
   use pi_ieee, only: nan_dp, ieee_is_finite => is_finite, ieee_is_nan => is_nan
   !$ use omp_lib, only: omp_get_max_threads
   implicit none
@@ -356,14 +357,23 @@ contains
   !> an unknown method. method: 0 following, 1 exact (pi_dsm_fast's fast path,
   !> exact_ray where it declines), 2 iterative; internal (tests): 3 exact_ray
   !> alone, 4 the fast path alone (ray_fast_declined where it declines).
-  subroutine dsm_trace_packed(dsm, n, s, l, method, threads, p, q, scal, status, nsteps, stat)
+  !> fan >= 2 (exact method only): the rays come in consecutive groups of fan
+  !> (the last may be shorter); a group whose rays share one focal point is
+  !> first swept as a whole (pi_dsm_sweep) and each ray's search starts at its
+  !> certified clear distance (pi_dsm_fast's fast_from). The answers are the
+  !> exact mode's to its tolerance, not bit for bit those without fans.
+  subroutine dsm_trace_packed(dsm, n, s, l, method, threads, p, q, scal, status, nsteps, stat, fan)
     type(dsm_t), intent(in) :: dsm
     integer, intent(in) :: n, method, threads
     real(dp), intent(in) :: s(3, n), l(3, n)
     real(dp), intent(out) :: p(3, n), q(3, n), scal(10, n)
     integer, intent(out) :: status(n), nsteps(n), stat
-    integer :: k, nt
+    !> rays per fan (0 or 1: none)
+    integer, intent(in), optional :: fan
+    integer :: k, nt, g, ng, nf, k0, k1
     real(dp) :: nan
+    real(dp), allocatable :: rclear(:)
+    logical :: fans
     nan = nan_dp
     p = nan; q = nan; scal = nan; status = ray_bad_direction; nsteps = 0
     stat = stat_ok
@@ -374,6 +384,23 @@ contains
     nt = 1
     !$ nt = omp_get_max_threads()
     if (threads > 0) nt = threads
+    nf = 0
+    if (present(fan)) nf = fan
+    fans = nf >= 2 .and. method == dsm_method_exact
+    if (fans) then
+      allocate(rclear(n))
+      rclear = 0.0_dp
+      ng = (n + nf - 1) / nf
+      !$omp parallel do schedule(dynamic, 1) num_threads(nt) default(shared) private(g, k0, k1, k)
+      do g = 1, ng
+        k0 = (g - 1) * nf + 1
+        k1 = min(n, g * nf)
+        if (k1 - k0 < 1) cycle
+        if (all(s(1, k0:k1) == s(1, k0) .and. s(2, k0:k1) == s(2, k0) .and. s(3, k0:k1) == s(3, k0))) &
+          call sweep_fan(dsm, s(:, k0), l(:, k0:k1), k1 - k0 + 1, rclear(k0:k1))
+      end do
+      !$omp end parallel do
+    end if
     !$omp parallel do schedule(dynamic, 64) num_threads(nt) default(shared) private(k)
     do k = 1, n
       call trace_one(k)
@@ -412,7 +439,11 @@ contains
         else if (method == dsm_method_following) then
           call follow_ray(dsm, s(:, k), lu, res)
         else if (method == dsm_method_exact) then
-          call fast_ray(dsm, s(:, k), lu, res, ok)          ! the fast path, exact_ray where it declines
+          if (fans) then                                  ! the fast path (from the sweep's clear distance)
+            call fast_ray(dsm, s(:, k), lu, res, ok, rclear(k))
+          else
+            call fast_ray(dsm, s(:, k), lu, res, ok)        ! the fast path, exact_ray where it declines
+          end if
           if (.not. ok) then
             nfast = res%nsteps
             call exact_ray(dsm, s(:, k), lu, res)

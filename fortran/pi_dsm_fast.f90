@@ -35,7 +35,7 @@ module pi_dsm_fast
   use pi_vector, only: pi, axis_distance, far_distance
   use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, pt_ok, pt_nodata
   use pi_follow, only: dsm_ray_t, ray_geo, level_crossing_back, ellipsoid_entry, set_hit, set_event, refine_tol
-  use pi_geodetic, only: ecr_to_geodetic_nb
+  use pi_geodetic, only: ecr_to_geodetic_nb, ecr_to_geodetic_near
   use pi_ieee, only: ieee_is_nan => is_nan        ! (one test per bilinear cell solve: not in the hot loop)
   implicit none
   private
@@ -86,14 +86,23 @@ module pi_dsm_fast
 
 contains
 
-  !> Exact ray point at r (one conversion).
-  pure subroutine eval_x(dsm, s, l, r, q)
+  !> Exact ray point at r (one conversion); with ref, an exact point of the
+  !> same ray nearby, by pi_geodetic's ecr_to_geodetic_near (Newton started
+  !> from ref's tangent, angles as increments on ref's: the same answer to
+  !> ~1e-15 relative, about a third of the cost). ref must not be q itself.
+  pure subroutine eval_x(dsm, s, l, r, q, ref)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: s(3), l(3), r
     type(xpt_t), intent(out) :: q
+    type(xpt_t), intent(in), optional :: ref
     real(dp) :: p(3)
     p = s + r * l                                           ! Shin & Park eq. 1
-    call ecr_to_geodetic_nb(p(1), p(2), p(3), dsm%a, dsm%f, q%lat, q%lon, q%h, q%nx, q%ny, q%nz)
+    if (present(ref)) then
+      call ecr_to_geodetic_near(p(1), p(2), p(3), dsm%a, dsm%f, ref%lat, ref%lon, ref%nx, ref%ny, ref%nz, &
+                                ref%h + ref%dh * (r - ref%r), q%lat, q%lon, q%h, q%nx, q%ny, q%nz)
+    else
+      call ecr_to_geodetic_nb(p(1), p(2), p(3), dsm%a, dsm%f, q%lat, q%lon, q%h, q%nx, q%ny, q%nz)
+    end if
     q%dh = l(1) * q%nx + l(2) * q%ny + l(3) * q%nz          ! dh/dr = l . n
     q%r = r
     call dsm_grid_uv(dsm, q%lat, q%lon, q%u, q%v)
@@ -147,7 +156,7 @@ contains
     else if (r == pc%b%r) then
       q = pc%b
     else
-      call eval_x(dsm, s, l, r, q)
+      call eval_x(dsm, s, l, r, q, pc%a)
       n = n + 1
     end if
   end subroutine eval_p
@@ -405,6 +414,7 @@ contains
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: s(3), l(3), r0, level
     type(xpt_t), intent(out) :: x
+    type(xpt_t) :: xp
     logical, intent(out) :: found
     integer, intent(inout) :: neval
     real(dp) :: r, rg, c, d, eps, den
@@ -430,7 +440,12 @@ contains
     end if
     do it = 1, 300
       if (.not. have) then
-        call eval_x(dsm, s, l, r, x)
+        if (it == 1) then
+          call eval_x(dsm, s, l, r, x)
+        else
+          xp = x
+          call eval_x(dsm, s, l, r, x, xp)
+        end if
         neval = neval + 1
       end if
       have = .false.
@@ -443,14 +458,16 @@ contains
       r = r + d
       if (d <= 1.0e-9_dp) then
         found = .true.
-        call eval_x(dsm, s, l, r, x)
+        xp = x
+        call eval_x(dsm, s, l, r, x, xp)
         neval = neval + 1
         return
       end if
       eps = c * d * d / (-x%dh)
       if (eps <= 1.0e-9_dp .and. eps <= 0.4_dp * d) then
         found = .true.
-        call eval_x(dsm, s, l, r, x)
+        xp = x
+        call eval_x(dsm, s, l, r, x, xp)
         neval = neval + 1
         return
       end if
@@ -552,23 +569,32 @@ contains
   !> The exact mode's answer for one ray (l unit, s above the surface), or
   !> ok = .false. (res%nsteps counts its conversions; nothing else is set)
   !> when the fast path declines and exact_ray must be run.
-  pure subroutine fast_ray(dsm, s, l, res, ok)
+  pure subroutine fast_ray(dsm, s, l, res, ok, rclear)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: s(3), l(3)
     type(dsm_ray_t), intent(inout) :: res
     logical, intent(out) :: ok
-    type(xpt_t) :: x_in, x_end, xa, xb
-    real(dp) :: r_in, r_end, r_far, lat, lon, h, dh, hs, rnext, hb, rho, lp, dr, den, gu, gv
-    logical :: found, out
-    integer :: code, k, npc, outcome, nseg
+    !> optional: a distance before which the ray meets nothing (a certificate of
+    !> pi_dsm_sweep; <= 0: none); the search then starts there (fast_from)
+    real(dp), intent(in), optional :: rclear
+    type(xpt_t) :: x_in, x_end, xtmp
+    real(dp) :: r_in, r_end, lat, lon, h, dh, hs, hb, rho, dr, den, gu, gv
+    logical :: found, out, used
+    integer :: code
     ok = .true.
     res%nsteps = 0
+    if (present(rclear)) then
+      if (rclear > 0.0_dp) then
+        call fast_from(dsm, s, l, rclear, res, ok, used)
+        if (used) return
+      end if
+    end if
     ! ---- 1. the search interval (as exact_ray, with the crossings' end points kept)
     if (dot_product(s, s) > (dsm%a + max(dsm%hmax, 0.0_dp) + 1.0e-9_dp * dsm%a)**2) then
       h = huge(1.0_dp)                                   ! outside the sphere |P| = a + H_max: h > H_max
     else
       call ray_geo(dsm, s, l, 0.0_dp, lat, lon, h, dh)
-      res%nsteps = 1
+      res%nsteps = res%nsteps + 1
     end if
     if (h <= dsm%hmax) then
       call eval_x(dsm, s, l, 0.0_dp, x_in)
@@ -584,15 +610,7 @@ contains
     end if
     ! x_end exact at or (by ~1e-9 a) before r_end; the tail [x_end%r, r_end] is
     ! converted and searched only when the search gets there
-    call fast_entry(dsm, s, l, r_in, dsm%hmin, x_end, r_end, found, res%nsteps)
-    if (.not. found) then
-      r_far = far_distance(s, l, dsm%a + max(dsm%hmax, 0.0_dp) + 1.0_dp)
-      call level_crossing_back(dsm, s, l, max(r_far, r_in), dsm%hmax, r_end, found, res%nsteps)
-      if (.not. found) r_end = r_in
-      r_end = max(r_end, r_in)
-      call eval_x(dsm, s, l, r_end, x_end)
-      res%nsteps = res%nsteps + 1
-    end if
+    call slab_end(dsm, s, l, r_in, x_end, r_end, res%nsteps)
     ! ---- the start point itself (a box bound below its height over data settles it without the lookup)
     if (x_in%r < r_in) then
       ! x_in is before the start: the box of all points within dr of x_in, dr = r_in - x_in%r
@@ -613,7 +631,8 @@ contains
       if (gu < 1.0_dp .and. gv < 1.0_dp) &
         call dsm_box_bound(dsm, x_in%u - gu, x_in%u + gu, x_in%v - gv, x_in%v + gv, hb, out)
       if (.not. (hb < dsm%hmax - fast_hmarg * dsm%a - 1.0e-13_dp * abs(dsm%hmax) .and. .not. out)) then
-        call eval_x(dsm, s, l, r_in, x_in)               ! not settled: the start point exactly
+        xtmp = x_in
+        call eval_x(dsm, s, l, r_in, x_in, xtmp)         ! not settled: the start point exactly
         res%nsteps = res%nsteps + 1
       end if
     end if
@@ -641,6 +660,104 @@ contains
       ok = .false.
       return
     end if
+    call search_slab(dsm, s, l, x_in, r_in, x_end, r_end, res, ok)
+  end subroutine fast_ray
+
+  !> fast_ray's answer for a ray known to meet nothing before rc (pi_dsm_sweep's
+  !> certificate covers the ray's points with h >= H_min). used = .false.
+  !> (nothing decided; res%nsteps counts the conversion made) unless the point
+  !> at rc lies in the slab and descends: H_min < h(rc) <= H_max and h'(rc) < 0,
+  !> so that h >= h(rc) > H_min on [0, rc] (h is convex along the line, its
+  !> tangent at rc a lower bound). The search then starts at rc: first a short
+  !> piece of about four cells of horizontal travel, which holds the first event
+  !> of almost every certified ray (it stops at most a unit before it), never
+  !> past the tangent's H_min crossing (so inside the slab), then the rest of the
+  !> slab as fast_ray searches it.
+  pure subroutine fast_from(dsm, s, l, rc, res, ok, used)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3), rc
+    type(dsm_ray_t), intent(inout) :: res
+    logical, intent(out) :: ok, used
+    type(xpt_t) :: x_in, x1, x_end
+    real(dp) :: hs, len1, cell, hor, r_end
+    integer :: code, outcome, nseg
+    ok = .true.
+    used = .false.
+    if (.not. (rc > 0.0_dp .and. rc < huge(1.0_dp))) return
+    call eval_x(dsm, s, l, rc, x_in)
+    res%nsteps = res%nsteps + 1
+    if (.not. (x_in%h > dsm%hmin .and. x_in%h <= dsm%hmax .and. x_in%dh < 0.0_dp)) return
+    used = .true.
+    call dsm_height(dsm, x_in%lat, x_in%lon, hs, code)
+    if (code == pt_nodata) then
+      call set_event(dsm, s, l, rc, ray_no_data, res)
+      return
+    end if
+    if (code == pt_ok .and. x_in%h <= hs) then
+      call set_hit(dsm, s, l, rc, ray_hit, res)
+      return
+    end if
+    cell = dsm%a * max(abs(dsm%dlat), dsm%dlon * cos(x_in%lat))
+    hor = sqrt(max(0.0_dp, 1.0_dp - x_in%dh**2))
+    len1 = min(1.5_dp * cell / max(hor, 0.05_dp), (1.0_dp - 1.0e-9_dp) * (x_in%h - dsm%hmin) / (-x_in%dh))
+    x1 = x_in
+    if (len1 > 10.0_dp * refine_tol) then
+      call eval_x(dsm, s, l, rc + len1, x1, x_in)
+      res%nsteps = res%nsteps + 1
+      nseg = 0
+      call search_piece(dsm, s, l, x_in, x1, rc, 1, res, outcome, nseg)
+      if (outcome == out_decided) return
+      if (outcome == out_declined) then
+        ok = .false.
+        return
+      end if
+    end if
+    call slab_end(dsm, s, l, x1%r, x_end, r_end, res%nsteps)
+    if (.not. (r_end - x1%r <= fast_maxlen * dsm%a)) then
+      ok = .false.
+      return
+    end if
+    call search_slab(dsm, s, l, x1, x1%r, x_end, r_end, res, ok)
+  end subroutine fast_from
+
+  !> The slab's end after r_from: r_end, the first crossing of H_min (or, when
+  !> the ray never reaches it, the last crossing of H_max before it leaves the
+  !> sphere |P| = a + H_max, at least r_from), and x_end exact at or (by
+  !> ~1e-9 a) before it. neval counts conversions.
+  pure subroutine slab_end(dsm, s, l, r_from, x_end, r_end, neval)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3), r_from
+    type(xpt_t), intent(out) :: x_end
+    real(dp), intent(out) :: r_end
+    integer, intent(inout) :: neval
+    real(dp) :: r_far
+    logical :: found
+    call fast_entry(dsm, s, l, r_from, dsm%hmin, x_end, r_end, found, neval)
+    if (.not. found) then
+      r_far = far_distance(s, l, dsm%a + max(dsm%hmax, 0.0_dp) + 1.0_dp)
+      call level_crossing_back(dsm, s, l, max(r_far, r_from), dsm%hmax, r_end, found, neval)
+      if (.not. found) r_end = r_from
+      r_end = max(r_end, r_from)
+      call eval_x(dsm, s, l, r_end, x_end)
+      neval = neval + 1
+    end if
+  end subroutine slab_end
+
+  !> The search of [r_in, r_end] (x_in exact at r_in; x_end exact at or just
+  !> before r_end), nothing before r_in: pieces in ray order, each searched
+  !> depth-first on cheap points, then the end point; ok = .false. where the
+  !> fast path declines (as fast_ray).
+  pure subroutine search_slab(dsm, s, l, x_in, r_in, x_end_in, r_end, res, ok)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3), r_in, r_end
+    type(xpt_t), intent(in) :: x_in, x_end_in
+    type(dsm_ray_t), intent(inout) :: res
+    logical, intent(out) :: ok
+    type(xpt_t) :: x_end, xa, xb
+    real(dp) :: rho, lp, rnext, hs
+    integer :: k, npc, outcome, nseg, code
+    ok = .true.
+    x_end = x_end_in
     ! ---- 2. pieces in ray order, each searched depth-first on cheap points
     ! piece length: at least fast_piece, longer on coarse grids, where the
     ! widenings psi''L^2/8 (|psi''| ~ 3/M_min^2) and L^2/(4 rho^2) stay near 0.01 cells
@@ -657,7 +774,7 @@ contains
         xb = x_end
       else
         rnext = r_in + (r_end - r_in) * (real(k, dp) / npc)
-        call eval_x(dsm, s, l, rnext, xb)
+        call eval_x(dsm, s, l, rnext, xb, xa)
         res%nsteps = res%nsteps + 1
       end if
       if (.not. (xb%r > xa%r)) cycle
@@ -670,7 +787,7 @@ contains
     end do
     if (x_end%r < r_end) then                            ! the tail: its end exactly, then its search
       xa = x_end
-      call eval_x(dsm, s, l, r_end, x_end)
+      call eval_x(dsm, s, l, r_end, x_end, xa)
       res%nsteps = res%nsteps + 1
       call search_piece(dsm, s, l, xa, x_end, xa%r, 1, res, outcome, nseg)
       if (outcome == out_decided) return
@@ -687,7 +804,7 @@ contains
     end if
     ! ---- no hit, no no-data: the search for the first low point outside is exact_ray's
     ok = .false.
-  end subroutine fast_ray
+  end subroutine search_slab
 
   !> Depth-first search of the piece [xa, xb] (exact ends) for the first hit or
   !> no-data point, in ray order, on cheap points. At level 1 a segment that
@@ -802,7 +919,8 @@ contains
             found = .true.
             exit
           end if
-          call eval_x(dsm, s, l, r, xc)
+          xd = xc
+          call eval_x(dsm, s, l, r, xc, xd)
           res%nsteps = res%nsteps + 1
           g = xc%h - hc
           dh = xc%dh
@@ -813,7 +931,8 @@ contains
             if (near) then
               xc = xd
             else
-              call eval_x(dsm, s, l, r, xc)               ! convert there
+              xd = xc
+              call eval_x(dsm, s, l, r, xc, xd)           ! convert there
               res%nsteps = res%nsteps + 1
             end if
           end if

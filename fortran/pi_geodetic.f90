@@ -14,6 +14,11 @@
 !>   shrinking: always terminates (at most geo_maxit iterations), relative
 !>   accuracy ~1e-15; exact at the poles, on the equator and at the centre.
 !>   h is the signed distance to the ellipsoid (negative inside).
+!> * ecr_to_geodetic_near: the same exact conversion for a point near one
+!>   already converted (the DSM fast path's points along one ray): Newton
+!>   started from the caller's height estimate, accepted one step early where
+!>   its quadratic convergence bounds the error, and the angles as increments
+!>   on the reference's (a short series instead of two atan2).
 !>
 !> Angles in radians, lengths in the units of a. All routines are elemental.
 module pi_geodetic
@@ -22,11 +27,13 @@ module pi_geodetic
   private
 
   public :: geodetic_to_ecr, ecr_to_geodetic, ecr_to_geodetic_bowring, ecr_to_geodetic_printed, &
-            geo_maxit, ecr_to_geodetic_nb
+            geo_maxit, ecr_to_geodetic_nb, ecr_to_geodetic_near
 
   !> Iteration limit of the exact conversion (bisection fallback keeps it finite;
   !> Newton needs 1-3 iterations from Bowring's estimate near the surface).
   integer, parameter :: geo_maxit = 200
+  !> pi (pi_vector's value; here to keep this module free of dependencies)
+  real(dp), parameter :: pi_ = 3.14159265358979323846264338327950288_dp
 
 contains
 
@@ -119,6 +126,105 @@ contains
     real(dp), intent(out), optional :: nx, ny, nz
     call geodetic_newton(x, y, z, a, f, .false., lat, lon, h, nx, ny, nz)
   end subroutine ecr_to_geodetic_nb
+
+  !> Exact ECR -> geodetic conversion of a point near a converted reference
+  !> (lat_r, lon_r and its unit normal nx_r, ny_r, nz_r), with h_est an
+  !> estimate of the point's height (e.g. the reference's tangent along a ray).
+  !> Results equal ecr_to_geodetic_nb's to its ~1e-15 relative accuracy (not
+  !> bit for bit); it falls back to it on the axis, the equatorial plane, or
+  !> where the point's normal is more than 0.01 rad from the reference's.
+  !>
+  !> * Newton on Eberly's F(t) in the same shrinking bracket, started at
+  !>   t = h_est a^2 / N_r (h = t N / a^2 at the foot point). A Newton step d
+  !>   leaves an error <= (F''/2|F'|) d^2 <= 1.5 d^2 / (t + b^2) after it, so
+  !>   a step |d| <= 1e-8 (|t| + a^2) is accepted (error <= 1.5e-16 (a/b)^2
+  !>   relative: inside the stopping rule's 1e-15) without the confirming step.
+  !> * lat = lat_r + atan(tan(lat - lat_r)), lon likewise, the tangents from
+  !>   the foot point's gradient and (x, y) against the reference's normal,
+  !>   atan by its series to z^9 for |z| <= 0.01 (truncation <= 1e-23).
+  !>
+  !> Inputs: x, y, z ECR (units of a); a > 0; 0 <= f < 1; the reference;
+  !> h_est (units of a). Outputs as ecr_to_geodetic_nb (lon may pass +-pi by
+  !> the increment's size only: it is wrapped back into [-pi, pi]).
+  elemental subroutine ecr_to_geodetic_near(x, y, z, a, f, lat_r, lon_r, nx_r, ny_r, nz_r, h_est, &
+                                            lat, lon, h, nx, ny, nz)
+    real(dp), intent(in) :: x, y, z, a, f, lat_r, lon_r, nx_r, ny_r, nz_r, h_est
+    real(dp), intent(out) :: lat, lon, h, nx, ny, nz
+    real(dp) :: b, a2, b2, e2, y0, y1, x0, x1, t, lo, hi, fv, dfv, tn, q0, q1, g0, g1, gn, cr, sr, den, arg
+    real(dp) :: rho
+    integer :: it
+    logical :: newton
+    b = a * (1.0_dp - f)
+    a2 = a * a
+    b2 = b * b
+    e2 = f * (2.0_dp - f)
+    y0 = sqrt(x * x + y * y)
+    y1 = abs(z)
+    cr = sqrt(nx_r * nx_r + ny_r * ny_r)                    ! cos and sin of the reference latitude
+    sr = nz_r
+    den = nx_r * x + ny_r * y
+    if (y1 == 0.0_dp .or. y0 == 0.0_dp .or. .not. (cr > 1.0e-6_dp .and. den > 0.0_dp) &
+        .or. .not. (abs(nx_r * y - ny_r * x) <= 1.0e-2_dp * den)) then
+      call geodetic_newton(x, y, z, a, f, .false., lat, lon, h, nx, ny, nz)
+      return
+    end if
+    lo = -b2 + b * y1
+    hi = -b2 + sqrt(a2 * y0 * y0 + b2 * y1 * y1)
+    t = h_est * a2 * sqrt(1.0_dp - e2 * sr * sr) / a       ! h_est a^2 / N_r
+    if (.not. (t > lo .and. t < hi)) t = 0.5_dp * (lo + hi)
+    do it = 1, geo_maxit
+      q0 = a * y0 / (t + a2)
+      q1 = b * y1 / (t + b2)
+      fv = q0 * q0 + q1 * q1 - 1.0_dp
+      if (fv > 0.0_dp) then
+        lo = t
+      else if (fv < 0.0_dp) then
+        hi = t
+      else
+        exit
+      end if
+      dfv = -2.0_dp * (q0 * q0 / (t + a2) + q1 * q1 / (t + b2))
+      tn = t - fv / dfv
+      newton = tn > lo .and. tn < hi
+      if (.not. newton) tn = 0.5_dp * (lo + hi)
+      if (abs(tn - t) <= 1.0e-15_dp * (abs(t) + a2) .or. .not. (hi - lo > 0.0_dp) .or. &
+          (newton .and. t > -0.5_dp * b2 .and. abs(tn - t) <= 1.0e-8_dp * (abs(t) + a2))) then
+        t = tn
+        exit
+      end if
+      t = tn
+    end do
+    x0 = a2 * y0 / (t + a2)
+    x1 = b2 * y1 / (t + b2)
+    g0 = x0 / a2
+    g1 = sign(x1 / b2, z)
+    gn = sqrt(g0 * g0 + g1 * g1)
+    h = t * gn
+    ! latitude: the increment on lat_r, tan(d) = (cr g1 - sr g0) / (cr g0 + sr g1)
+    den = cr * g0 + sr * g1
+    arg = (cr * g1 - sr * g0) / den
+    if (den > 0.0_dp .and. abs(arg) <= 1.0e-2_dp) then
+      lat = lat_r + atan_small(arg)
+    else
+      lat = atan2(g1, g0)
+    end if
+    ! longitude: the increment on lon_r against the reference's horizontal direction (nx_r, ny_r)
+    arg = (nx_r * y - ny_r * x) / (nx_r * x + ny_r * y)
+    lon = lon_r + atan_small(arg)
+    if (lon > pi_) lon = lon - 2.0_dp * pi_
+    if (lon < -pi_) lon = lon + 2.0_dp * pi_
+    rho = g0 / gn                                          ! cos(lat)
+    nx = rho * x / y0
+    ny = rho * y / y0
+    nz = g1 / gn
+  contains
+    elemental function atan_small(zz) result(v)
+      real(dp), intent(in) :: zz
+      real(dp) :: v, w
+      w = zz * zz
+      v = zz * (1.0_dp + w * (-1.0_dp / 3.0_dp + w * (0.2_dp + w * (-1.0_dp / 7.0_dp + w / 9.0_dp))))
+    end function atan_small
+  end subroutine ecr_to_geodetic_near
 
   !> The exact conversion behind ecr_to_geodetic (bowring = .true.: Newton
   !> started from Bowring's one-step estimate) and ecr_to_geodetic_nb

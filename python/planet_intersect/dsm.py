@@ -489,11 +489,16 @@ def _npz_arrays(path, required, what: str, error=ValueError, hint: str = "") -> 
     return d
 
 
-def _trace_raw(dsm: GeodeticDSM, s, l, method: str, threads):
+def _trace_raw(dsm: GeodeticDSM, s, l, method: str, threads, fan: int = 0):
     """The checks and the core call shared by :func:`intersect_dsm` and the image
     simulation: (n, s, l, p, q, scal, status, nsteps) as the core returns them
     (p, q (3, n); scal (10, n): lat, lon (radians), height, surface height,
-    distance, incidence (radians), event lat, lon, height, distance)."""
+    distance, incidence (radians), event lat, lon, height, distance).
+
+    ``fan`` >= 2 (the simulation: the pixels of a line): the rays come in
+    consecutive groups of ``fan``; for the exact method, a group whose rays share
+    one focal point is swept as a whole first (fortran/pi_dsm_sweep.f90), which
+    changes the answers only within the exact mode's tolerance."""
     from ._ext import core as _core
     from .intersect import FAR_LIMIT, _unit_scaled, as_vectors, check_threads
 
@@ -517,7 +522,7 @@ def _trace_raw(dsm: GeodeticDSM, s, l, method: str, threads):
     pyr, meta = dsm.pyramid()
     p, q, scal, status, nsteps, stat = _core.core_dsm_trace(
         *dsm._core_grid()[:7], dsm._core_grid()[7], dsm.hmax, dsm.hmin, pyr, meta.T, s.T, l.T,
-        _DSM_METHODS[method], int(threads))
+        _DSM_METHODS[method], int(threads), int(fan))
     if stat != 0:
         raise ValueError(f"intersect: the core rejected method {method!r} (status {stat})")
     bad = np.flatnonzero((status == DSMStatus.BAD_POSITION) | (status == DSMStatus.BAD_DIRECTION))

@@ -579,7 +579,7 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
         s, l = sensor.rays(k0, k1)
         ta = time.perf_counter()
         try:
-            n, s, l, p, _, scal, st, _ = _trace_raw(dsm, s, l, method, threads)
+            n, s, l, p, _, scal, st, _ = _trace_raw(dsm, s, l, method, threads, fan=npx)
         except ValueError as exc:
             # name the image pixel, not the block's flat ray index
             raise ValueError(f"sensor lines {k0}..{k1 - 1} (ray index = (line - {k0}) * {npx} + pixel): "

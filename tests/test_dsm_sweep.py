@@ -1,0 +1,343 @@
+"""Line sweep of the exact DSM mode (fortran/pi_dsm_sweep.f90): certified
+clear distances for fans of rays that share a focal point.
+
+The sweep may only shorten the search, never skip an event, so the checks are:
+
+* soundness: for every ray, the certified clear distance ``rclear`` is at most
+  the distance of the ray's first event (hit, no-data point, or the point where
+  it leaves the DSM) found by the exact mode without the sweep (itself checked
+  against the exhaustive reference in test_dsm_references.py), and, on small
+  scenes, at most the exhaustive reference's own first event
+  (tests/references/dsm_exhaustive.py, independent of the Fortran);
+* the exact mode with fans gives the same status as without, and distances
+  within the mode's tolerance (1e-6 m);
+* usefulness: which fans get certificates, and how far before the hit the
+  certificate stops (only speed depends on it).
+
+Fans: lines of the simulation's oblique scan (rows of the grid), of a pushbroom
+on an orbit (roll, pitch, yaw), rows of an airborne frame camera, and random
+fans, coplanar or with their rays up to 0.5 m off one plane, over building
+DSMs ("nearest" and bilinear) with no-data holes, fans that leave the grid, a
+grid across the antimeridian, one near a pole and a global one.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+import planet_intersect as pi
+from planet_intersect import _core
+from planet_intersect import synthetic_dsm as sd
+from planet_intersect.geodetic import geodetic_to_ecef
+
+EXACT = 1
+TOL_R = 1e-6                                   # m: the exact mode's tolerance along the ray
+HIT, NO_DATA, LEFT_DSM = int(pi.DSMStatus.HIT), int(pi.DSMStatus.NO_DATA), int(pi.DSMStatus.LEFT_DSM)
+EVENTS = (HIT, NO_DATA, LEFT_DSM)
+
+
+def _unit(l):
+    l = np.atleast_2d(np.asarray(l, dtype=np.float64))
+    return np.ascontiguousarray(l / np.linalg.norm(l, axis=1, keepdims=True))
+
+
+def sweep(dsm, s, l, fan):
+    pyr, meta = dsm.pyramid()
+    g = dsm._core_grid()
+    return _core.core_dsm_sweep(*g[:7], g[7], dsm.hmax, dsm.hmin, pyr, meta.T,
+                                np.ascontiguousarray(s, dtype=np.float64).T, _unit(l).T, fan)
+
+
+def trace(dsm, s, l, fan=0, threads=1):
+    """(status, r of the hit or event) of the exact mode, with fans of ``fan`` rays or without."""
+    pyr, meta = dsm.pyramid()
+    g = dsm._core_grid()
+    p, q, scal, status, nsteps, stat = _core.core_dsm_trace(
+        *g[:7], g[7], dsm.hmax, dsm.hmin, pyr, meta.T, np.ascontiguousarray(s, dtype=np.float64).T,
+        _unit(l).T, EXACT, threads, fan)
+    assert stat == 0
+    return status, np.where(np.isfinite(scal[4]), scal[4], scal[9]), nsteps
+
+
+def check(dsm, s, l, fan, min_certified=0.0):
+    """Assert soundness and equality; return (fraction certified, gaps r_event - rclear of certified hits)."""
+    rc = sweep(dsm, s, l, fan)
+    assert np.all(np.isfinite(rc)) and np.all(rc >= 0.0)
+    st0, r0, _ = trace(dsm, s, l, 0)
+    st1, r1, _ = trace(dsm, s, l, fan)
+    ev = np.isin(st0, EVENTS)
+    bad = np.flatnonzero(ev & (rc > r0))
+    assert bad.size == 0, (f"{bad.size} rays certified past their first event: rclear - r = "
+                           f"{(rc - r0)[bad[:5]]} m, status {st0[bad[:5]]}")
+    diff = np.flatnonzero(st1 != st0)
+    assert diff.size == 0, f"{diff.size} status changes with fans, first {diff[:5]}: {st1[diff[:5]]} vs {st0[diff[:5]]}"
+    fin = np.isfinite(r0)
+    np.testing.assert_array_equal(np.isfinite(r1), fin)
+    dr = np.abs(r1[fin] - r0[fin])
+    assert dr.max(initial=0.0) <= TOL_R, f"max |dr| with fans = {dr.max():.3g} m"
+    cert = rc > 0
+    frac = float(cert.mean())
+    assert frac >= min_certified, f"only {frac:.3f} of the rays certified"
+    gaps = (r0 - rc)[cert & (st0 == HIT)]
+    return frac, gaps, rc
+
+
+def slab_inside(dsm, s, l, margin_cells=2):
+    """Rays whose points between H_max and H_min lie over the grid (a margin of cells inside it),
+    from the references' own geodesy (points every metre of height along the ray)."""
+    from references.geodesy import ecef_to_geodetic as ref_geodetic
+
+    l = _unit(l)
+    out = np.ones(len(s), dtype=bool)
+    # where the ray crosses each height level: Newton on h(r) = level from the sphere estimate
+    for level in np.linspace(dsm.hmin, dsm.hmax, 9):
+        r = np.linalg.norm(s, axis=1) - dsm.a - level
+        for _ in range(30):
+            la, lo, h = ref_geodetic(s + r[:, None] * l)
+            r = r + (h - level) / np.maximum(1e-6, -np.einsum("ij,ij->i", l, _unit(s + r[:, None] * l)))
+        la, lo, h = ref_geodetic(s + r[:, None] * l)
+        v = (la - dsm.lat_first) / dsm.dlat
+        u = (lo - dsm.lon_first) / dsm.dlon
+        out &= (v > margin_cells) & (v < dsm.nrows - 1 - margin_cells) & (u > margin_cells) & \
+            (u < dsm.ncols - 1 - margin_cells)
+    return out
+
+
+# ------------------------------------------------------------------ fans
+def oblique_lines(g, zenith, azimuth, lines, margin=8):
+    sen = sd.ObliqueScan(g, zenith=zenith, azimuth=azimuth, margin=margin)
+    k = np.linspace(0, sen.nlines - 1, lines).astype(int)
+    parts = [sen.rays(int(i), int(i) + 1) for i in k]
+    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]), sen.npixels
+
+
+def random_fans(g, nfans, m, seed, off_plane=0.0, height=(2e3, 700e3), zen=(5.0, 45.0), reach=1.0, skew=None):
+    """nfans fans of m rays: a focal point above a random point of the grid, rays to m points on a
+    straight 3-D line through a random ground point (so coplanar), each moved off the fan's plane by
+    up to ``off_plane`` m; the line's half length up to ``reach`` x the grid's half width. The line
+    runs in a random direction, or (``skew`` in degrees) within +-skew of the view's azimuth, as a
+    cross-track pushbroom's line seen from the side (the fan's plane is then near vertical)."""
+    rng = np.random.default_rng(seed)
+    h = np.asarray(g["heights"])
+    nr, nc = h.shape
+    ss, ll = [], []
+    for _ in range(nfans):
+        i, j = rng.uniform(0.1, 0.9) * (nr - 1), rng.uniform(0.1, 0.9) * (nc - 1)
+        lat = g["lat_first"] + i * g["dlat"]
+        lon = g["lon_first"] + j * g["dlon"]
+        base = float(np.nanmedian(h))
+        c = geodetic_to_ecef(lat, lon, base, g.get("a", pi.geodetic.WGS84_A), g.get("f", pi.geodetic.WGS84_F))
+        s, back = sd._from_above(c[None], np.array([lat]), np.array([lon]), np.array([rng.uniform(*height)]),
+                                 np.array([rng.uniform(*zen)]), np.array([rng.uniform(0, 2 * np.pi)]))
+        up = c / np.linalg.norm(c)
+        if skew is None:
+            d = np.cross(up, rng.normal(size=3))
+        else:
+            across = np.cross(up, s[0] - c)                    # horizontal, across the view
+            across /= np.linalg.norm(across)
+            along = np.cross(across, up)                       # horizontal, toward the sensor
+            sk = np.radians(rng.uniform(-skew, skew))
+            d = np.cos(sk) * along + np.sin(sk) * across
+        d /= np.linalg.norm(d)
+        cell = abs(g["dlon"]) * 111e3 * np.cos(np.radians(lat))
+        if skew is None:
+            half = rng.uniform(0.05, 0.5) * reach * nc * cell
+        else:
+            half = 0.5 * m * cell * rng.uniform(0.7, 2.0)          # an image line: a pixel per 0.7-2 cells
+        tt = np.linspace(-half, half, m)
+        tgt = c + tt[:, None] * d
+        nrm = np.cross(d, tgt[m // 2] - s[0])
+        nrm /= np.linalg.norm(nrm)
+        tgt = tgt + (off_plane * np.sin(rng.uniform(0, 6.3) + np.arange(m) * rng.uniform(0.01, 0.3)))[:, None] * nrm
+        ss.append(np.repeat(s, m, axis=0))
+        ll.append(tgt - s[0])
+    return np.concatenate(ss), np.concatenate(ll)
+
+
+@pytest.fixture(scope="module")
+def city():
+    g = sd.building_scene(n=384, seed=21)
+    g.pop("roof_id")
+    return g
+
+
+def _dsm(g, interp, holes=0, seed=0):
+    h = np.array(g["heights"], dtype=np.float64)
+    if holes:
+        rng = np.random.default_rng(seed)
+        for _ in range(holes):
+            i, j = rng.integers(0, h.shape[0] - 12), rng.integers(0, h.shape[1] - 12)
+            h[i:i + rng.integers(1, 12), j:j + rng.integers(1, 12)] = np.nan
+    return pi.GeodeticDSM.from_array(h, g["lat_first"], g["lon_first"], g["dlat"], g["dlon"],
+                                     a=g.get("a", pi.geodetic.WGS84_A), f=g.get("f", pi.geodetic.WGS84_F),
+                                     interpolation=interp)
+
+
+# ------------------------------------------------------------------ tests
+@pytest.mark.parametrize("interp", ["nearest", "bilinear"])
+@pytest.mark.parametrize("zenith,azimuth,across", [(9.0, 90.0, True), (25.0, 270.0, True), (35.0, 0.0, False),
+                                                   (15.0, 135.0, False), (2.0, 200.0, False)])
+def test_oblique_scan_lines(city, interp, zenith, azimuth, across):
+    """Lines along the grid's rows. Seen across the line (azimuth 90 or 270: the fan's plane is
+    vertical) nearly every ray is certified; seen along it (azimuth 0, 135) the plane is tilted, its
+    corridor is wide and the sweep gives up (sweep_units_per_ray): only soundness is checked."""
+    dsm = _dsm(city, interp)
+    s, l, npx = oblique_lines(city, zenith, azimuth, lines=24)
+    frac, gaps, rc = check(dsm, s, l, npx)
+    if across:
+        # every ray whose slab (H_min..H_max) lies over the grid is certified; near the edges the
+        # corridor holds units outside the grid (columns up to H_max), which stop the prefixes
+        inside = slab_inside(dsm, s, l, margin_cells=3)
+        assert inside.sum() > 0.3 * len(s)
+        assert np.mean(rc[inside] > 0) >= 0.98, np.mean(rc[inside] > 0)
+        # the certificate stops at most about one unit (and the corridor's rounding) before the hit
+        cell_along = 1.0 / np.sin(np.radians(zenith)) + 1.0
+        assert np.median(gaps) <= 6 * cell_along, np.median(gaps)
+
+
+@pytest.mark.parametrize("interp", ["nearest", "bilinear"])
+def test_random_fans_coplanar_and_off_plane(city, interp):
+    dsm = _dsm(city, interp, holes=40, seed=3)
+    for seed, off, skew in ((1, 0.0, 2.0), (2, 0.05, 5.0), (3, 0.5, 2.0), (4, 0.0, None), (5, 0.3, None)):
+        s, l = random_fans(city, 40, 96, seed, off_plane=off, reach=2.0, skew=skew)
+        frac, gaps, _ = check(dsm, s, l, 96)
+        if skew is not None:
+            assert frac > 0.1, (seed, off, frac)          # some lines leave the grid or cross the nadir
+
+
+def test_orbit_pushbroom_and_frame_rows(city):
+    dsm = _dsm(city, "nearest", holes=15, seed=4)
+    lat_c = city["lat_first"] + 0.5 * (dsm.nrows - 1) * city["dlat"]
+    lon_c = city["lon_first"] + 0.5 * (dsm.ncols - 1) * city["dlon"]
+    for roll, pitch, yaw in ((9.0, 0.0, 0.0), (-20.0, 5.0, 10.0), (0.0, 0.0, 0.0), (3.0, -15.0, 30.0)):
+        sen = pi.Pushbroom.from_orbit(altitude=685e3, inclination=97.9, npixels=300, ifov=1.5e-6, nlines=20,
+                                      line_rate=2000.0, target=(lat_c, lon_c), roll=roll, pitch=pitch, yaw=yaw)
+        s, l = sen.rays()
+        frac, gaps, _ = check(dsm, s, l, sen.npixels)
+        if pitch == 0.0:
+            # cross-track lines (also at nadir: the geocentric nadir is ~0.2 deg off the vertical here)
+            assert frac > 0.8, (roll, frac)
+    # rows of an airborne frame camera, 1.5 km up, looking 40 deg off the vertical
+    c = geodetic_to_ecef(lat_c, lon_c, float(np.nanmedian(dsm.heights)))
+    up = c / np.linalg.norm(c)
+    east = np.array([-np.sin(np.radians(lon_c)), np.cos(np.radians(lon_c)), 0.0])
+    pos = c + 1500.0 * up + 1500.0 * np.tan(np.radians(40.0)) * east
+    cam = pi.FrameCamera.pinhole(pos, c, (24, 200), ifov=5e-4, up=up)        # image up: the zenith
+    s, l = cam.rays()
+    frac_rows, _, _ = check(dsm, s, l, cam.npixels)
+    # the image's columns as fans too
+    sc = np.ascontiguousarray(np.broadcast_to(s, l.shape).reshape(24, 200, 3).transpose(1, 0, 2).reshape(-1, 3))
+    lc = np.ascontiguousarray(l.reshape(24, 200, 3).transpose(1, 0, 2).reshape(-1, 3))
+    frac_cols, _, _ = check(dsm, sc, lc, 24)
+    assert max(frac_rows, frac_cols) > 0.5, (frac_rows, frac_cols)
+
+
+@pytest.mark.parametrize("interp", ["nearest", "bilinear"])
+def test_against_the_exhaustive_reference(interp):
+    """rclear <= the first event of the independent exhaustive stepping reference."""
+    from references.dsm_exhaustive import HIT as X_HIT, LEFT_DSM as X_LEFT, NO_DATA as X_ND, exhaustive_first_hit
+
+    g = sd.building_scene(n=128, seed=8)
+    g.pop("roof_id")
+    dsm = _dsm(g, interp, holes=6, seed=9)
+    s, l = random_fans(g, 6, 40, 11, off_plane=0.2, reach=2.0, skew=3.0)
+    rc = sweep(dsm, s, l, 40)
+    ref = exhaustive_first_hit(dsm.heights, g["lat_first"], g["lon_first"], g["dlat"], g["dlon"], s, l,
+                               interpolation=interp)
+    ev = np.isin(ref["status"], (X_HIT, X_ND, X_LEFT))
+    r_ev = np.where(ref["status"] == X_LEFT, ref["r_low_outside"], ref["r"])
+    assert (rc > 0).sum() >= 60
+    bad = np.flatnonzero(ev & (rc > r_ev + 1e-9))
+    assert bad.size == 0, (rc - r_ev)[bad[:5]]
+
+
+def test_no_certificates_where_assumptions_fail():
+    rng = np.random.default_rng(5)
+    # a global grid
+    h = rng.uniform(0, 3000.0, (90, 180))
+    dsm = pi.GeodeticDSM.from_array(h, 89.0, -179.0, -2.0, 2.0)
+    g = dict(heights=h, lat_first=89.0, lon_first=-179.0, dlat=-2.0, dlon=2.0)
+    s, l = random_fans(g, 4, 32, 6, height=(500e3, 700e3))
+    assert np.all(sweep(dsm, s, l, 32) == 0.0)
+    # near a pole (corridor above 80 deg)
+    hp = rng.uniform(0.0, 50.0, (100, 100))
+    dsmp = pi.GeodeticDSM.from_array(hp, 89.98, 10.0, 1e-4, 1e-3)
+    gp = dict(heights=hp, lat_first=89.98, lon_first=10.0, dlat=1e-4, dlon=1e-3)
+    s, l = random_fans(gp, 4, 32, 7, height=(2e3, 600e3))
+    assert np.all(sweep(dsmp, s, l, 32) == 0.0)
+    check(dsmp, s, l, 32)
+    # rays that do not share their focal point, and a focal point below H_max
+    g2 = sd.building_scene(n=96, seed=2)
+    g2.pop("roof_id")
+    dsm2 = _dsm(g2, "nearest")
+    s, l = random_fans(g2, 2, 16, 8)
+    s2 = s.copy()
+    s2[3] += 1.0
+    assert np.all(sweep(dsm2, s2, l, 16)[:16] == 0.0)
+    check(dsm2, s2, l, 16)
+
+
+@pytest.mark.parametrize("interp", ["nearest", "bilinear"])
+def test_antimeridian(interp):
+    rng = np.random.default_rng(15)
+    h = rng.uniform(0.0, 800.0, (60, 80))
+    h[rng.uniform(size=h.shape) < 0.9] = 100.0
+    dsm = pi.GeodeticDSM.from_array(h, -0.3, 179.6, 0.01, 0.01, interpolation=interp)
+    g = dict(heights=h, lat_first=-0.3, lon_first=179.6, dlat=0.01, dlon=0.01)
+    s, l = random_fans(g, 30, 64, 16, height=(5e3, 700e3), reach=1.5, skew=3.0)
+    frac, _, _ = check(dsm, s, l, 64)
+    assert frac > 0.3, frac
+
+
+def test_threads_give_identical_results(city):
+    dsm = _dsm(city, "bilinear", holes=10, seed=1)
+    s, l, npx = oblique_lines(city, 12.0, 60.0, lines=16)
+    a = trace(dsm, s, l, npx, threads=1)
+    b = trace(dsm, s, l, npx, threads=2)
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x, y)
+
+
+# ------------------------------------------------------------------ fuzzing
+hypothesis = pytest.importorskip("hypothesis", reason="fuzzing needs hypothesis")
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+@st.composite
+def fan_cases(draw):
+    nr, nc = draw(st.integers(2, 40)), draw(st.integers(2, 40))
+    base = draw(st.floats(-300.0, 3000.0))
+    h = base + np.array(draw(st.lists(st.floats(0.0, 200.0), min_size=nr * nc, max_size=nr * nc))).reshape(nr, nc)
+    if draw(st.booleans()):
+        h[draw(st.integers(0, nr - 1)), draw(st.integers(0, nc - 1))] = np.nan
+    if draw(st.booleans()):                              # flat blocks: walls and equal neighbours
+        h = np.round(h / 50.0) * 50.0
+    cell = draw(st.sampled_from([1e-5, 1e-4, 1e-3]))     # degrees: ~1 m, 10 m, 100 m
+    lat0 = draw(st.floats(-75.0, 75.0))
+    lon0 = draw(st.floats(-180.0, 180.0))
+    g = dict(heights=h, lat_first=lat0, lon_first=lon0, dlat=-cell, dlon=cell)
+    interp = draw(st.sampled_from(["nearest", "bilinear"]))
+    m = draw(st.integers(2, 40))
+    height = draw(st.sampled_from([300.0, 3e3, 1e5, 7e5]))
+    zen = draw(st.floats(0.0, 60.0))
+    skew = draw(st.sampled_from([None, 0.0, 3.0, 30.0]))
+    off = draw(st.sampled_from([0.0, 0.01, 0.5]))
+    seed = draw(st.integers(0, 2**31))
+    return g, interp, m, height, zen, skew, off, seed
+
+
+@settings(max_examples=int(os.environ.get("PI_FUZZ_EXAMPLES", "80")), deadline=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@given(fan_cases())
+def test_fuzz_fans(case):
+    """Any small DSM, any fan: never a certificate past an event, the same answers with fans."""
+    g, interp, m, height, zen, skew, off, seed = case
+    dsm = pi.GeodeticDSM.from_array(g["heights"], g["lat_first"], g["lon_first"], g["dlat"], g["dlon"],
+                                    interpolation=interp)
+    s, l = random_fans(g, 3, m, seed, off_plane=off, height=(height, height), zen=(zen, zen), reach=1.5,
+                       skew=skew)
+    check(dsm, s, l, m)
