@@ -138,6 +138,45 @@ def measure(spec: dict) -> dict:
     return out
 
 
+def measure_alternating(spec: dict) -> dict:
+    """Ratios of the exact mode to the following and to Rugged with the three called in turn
+    in one process, ``rounds`` times on the same rays (each timed on its second call): this machine's speed moves
+    by up to 1.5x between processes, so ratios across separate processes are noisy; per-round
+    ratios in one process are not. Returns the median and the range of each ratio."""
+    import planet_intersect as pi
+
+    grid, s, l = make_scene(spec["scene"], spec["n"], spec["nrays"])
+    dsm = pi.GeodeticDSM.from_array(grid["heights"], grid["lat_first"], grid["lon_first"], grid["dlat"],
+                                    grid["dlon"], a=grid["a"], f=grid["f"])
+    dsm.pyramid()
+    rug = None
+    sys.path.insert(0, str(REPO / "tests"))
+    from references.rugged.bridge import RuggedDSM, rugged_available
+    if rugged_available()[0]:
+        rug = RuggedDSM(grid["heights"], grid["lat_first"], grid["lon_first"], grid["dlat"], grid["dlon"],
+                        a=grid["a"], f=grid["f"])
+        rug.rays_per_second(s, l, warmup=3, repeats=1)            # JIT warm-up
+    for method in ("exact", "following"):
+        pi.intersect(dsm, s, l, method=method, threads=1)        # warm-up
+    def timed(method):
+        # the second of two calls: each method warm (its data in cache), as the separate-process medians
+        pi.intersect(dsm, s, l, method=method, threads=1)
+        t0 = time.perf_counter()
+        pi.intersect(dsm, s, l, method=method, threads=1)
+        return time.perf_counter() - t0
+
+    fol, rg = [], []
+    for _ in range(spec.get("rounds", 7)):
+        te = timed("exact")
+        fol.append(timed("following") / te)
+        if rug is not None:                                      # its Java loop's own clock (1 warm + 3 timed)
+            rg.append(len(s) / rug.rays_per_second(s, l, warmup=1, repeats=3) / te)
+    out = {"rounds": len(fol), "exact_over_following": [float(np.median(fol)), min(fol), max(fol)]}
+    if rg:
+        out["exact_over_rugged"] = [float(np.median(rg)), min(rg), max(rg)]
+    return out
+
+
 def run_isolated(spec: dict, timeout: float = 300.0) -> dict:
     try:
         proc = subprocess.run([sys.executable, __file__, "--one", json.dumps(spec)], capture_output=True, text=True,
@@ -160,7 +199,8 @@ def main(argv=None) -> int:
     ap.add_argument("--one", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.one:
-        print(json.dumps(measure(json.loads(args.one))))
+        spec = json.loads(args.one)
+        print(json.dumps(measure_alternating(spec) if spec.get("method") == "alternating" else measure(spec)))
         return 0
     if args.quick:
         n, nrays, min_s, scenes = 512, 2000, 0.3, ["buildings-pushbroom"]
@@ -178,18 +218,28 @@ def main(argv=None) -> int:
             print(f"{sc:22s} {m:10s} " + (f"{rps:12,.0f} rays/s  steps {r.get('steps_per_ray', float('nan')):8.1f}  "
                                           f"hits {r.get('hits')}  peak {r.get('peak_rss_mb', float('nan')):7.0f} MB"
                                           if rps else r.get("error", "?")), flush=True)
+    # the ratios with the methods called in turn in one process (the building pushbroom scene)
+    alt = run_isolated(dict(scene=scenes[0], method="alternating", n=n, nrays=nrays, rounds=7), timeout=600.0)
+    alt.update(scene=scenes[0])
+    if "exact_over_following" in alt:
+        ef = alt["exact_over_following"]
+        er = alt.get("exact_over_rugged")
+        print(f"{scenes[0]:22s} in turn, one process: exact = {ef[0]:.2f}x following ({ef[1]:.2f}-{ef[2]:.2f})"
+              + (f", {er[0]:.2f}x Rugged ({er[1]:.2f}-{er[2]:.2f})" if er else ", Rugged not available"), flush=True)
+    else:
+        print(f"{scenes[0]:22s} in turn, one process: {alt.get('error', '?')}", flush=True)
     machine = dict(machine=platform.machine(), system=platform.system(), python=platform.python_version(),
                    cores=os.cpu_count(), date=time.strftime("%Y-%m-%d"))
     name = "geodetic-quick" if args.quick else "geodetic"
     out = HERE / "results"
     out.mkdir(exist_ok=True)
-    (out / f"{name}.json").write_text(json.dumps(dict(machine=machine, rows=rows), indent=1))
-    (out / f"{name}.md").write_text(markdown(rows, machine))
+    (out / f"{name}.json").write_text(json.dumps(dict(machine=machine, rows=rows, alternating=alt), indent=1))
+    (out / f"{name}.md").write_text(markdown(rows, machine, alt))
     print(f"wrote {out / (name + '.md')}")
     return 0
 
 
-def markdown(rows, machine) -> str:
+def markdown(rows, machine, alt=None) -> str:
     lines = [f"# Geodetic DSM benchmark ({machine['date']}, {machine['machine']}, {machine['cores']} cores, "
              f"Python {machine['python']})", "",
              "| scene | method | rays/s | × following | × Rugged | steps/ray | hits | peak RSS (MB) |",
@@ -206,6 +256,14 @@ def markdown(rows, machine) -> str:
                      f"| {r['scene']} | {r['method']} | {rps:,.0f} | | ")
         lines[-1] += (f"{rps / g:.1f} | " if g else " | ") + \
             f"{r.get('steps_per_ray', float('nan')):.1f} | {r.get('hits', '')} | {r.get('peak_rss_mb', float('nan')):.0f} |"
+    if alt and "exact_over_following" in alt:
+        ef, er = alt["exact_over_following"], alt.get("exact_over_rugged")
+        lines += ["", f"Called in turn in one process ({alt['scene']}, {alt['rounds']} rounds, wall time, one thread; "
+                  "median and range of the per-round ratios):", "",
+                  "| ratio | median | range |", "|---|---|---|",
+                  f"| exact / following | {ef[0]:.2f} | {ef[1]:.2f}-{ef[2]:.2f} |"]
+        if er:
+            lines.append(f"| exact / Rugged (Java loop) | {er[0]:.2f} | {er[1]:.2f}-{er[2]:.2f} |")
     return "\n".join(lines) + "\n"
 
 
