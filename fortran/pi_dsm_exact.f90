@@ -31,7 +31,7 @@ module pi_dsm_exact
   use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, pt_ok, pt_outside, &
                     pt_nodata
   use pi_follow, only: dsm_ray_t, follow_ray, iterate_ray, ray_geo, level_crossing, level_crossing_back, &
-                       set_hit, set_event, refine_tol
+                       set_hit, set_event, settle_start, refine_tol
   use pi_geodetic, only: ecr_to_geodetic
   use pi_dsm_fast, only: fast_ray
   use pi_dsm_sweep, only: sweep_fan
@@ -163,7 +163,7 @@ contains
     type(dsm_ray_t), intent(inout) :: res
     type(rpt_t) :: pa, pb, pm, p_in, p_end, stack(exact_depth)
     real(dp) :: r_in, r_end, r_far, hs, lat, lon, h, dh, hlow, hb, r, g, dr, hc, rsplit, rm
-    logical :: found, out
+    logical :: found, out, done
     integer :: code, nst, nseg, it, cell
     res%nsteps = 0
     ! ---- 1. the search interval
@@ -191,14 +191,8 @@ contains
     res%nsteps = res%nsteps + 2
     ! ---- the start point itself
     call dsm_height(dsm, p_in%lat, p_in%lon, hs, code)
-    if (code == pt_nodata) then
-      call set_event(dsm, s, l, r_in, ray_no_data, res)
-      return
-    end if
-    if (code == pt_ok .and. p_in%h <= hs) then
-      call set_hit(dsm, s, l, r_in, ray_hit, res)
-      return
-    end if
+    call settle_start(dsm, s, l, r_in, p_in%h, hs, code, res, done)
+    if (done) return
     ! ---- 2. depth-first subdivision for the first hit or no-data point
     pa = p_in
     pb = p_end

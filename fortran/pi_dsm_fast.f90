@@ -34,7 +34,8 @@ module pi_dsm_fast
   use pi_status
   use pi_vector, only: pi, axis_distance, far_distance
   use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, pt_ok, pt_nodata
-  use pi_follow, only: dsm_ray_t, ray_geo, level_crossing_back, ellipsoid_entry, set_hit, set_event, refine_tol
+  use pi_follow, only: dsm_ray_t, ray_geo, level_crossing_back, ellipsoid_entry, set_hit, set_event, settle_start, &
+                       refine_tol
   use pi_geodetic, only: ecr_to_geodetic_nb, ecr_to_geodetic_near
   use pi_ieee, only: ieee_is_nan => is_nan        ! (one test per bilinear cell solve: not in the hot loop)
   implicit none
@@ -579,7 +580,7 @@ contains
     real(dp), intent(in), optional :: rclear
     type(xpt_t) :: x_in, x_end, xtmp
     real(dp) :: r_in, r_end, lat, lon, h, dh, hs, hb, rho, dr, den, gu, gv
-    logical :: found, out, used
+    logical :: found, out, used, done
     integer :: code
     ok = .true.
     res%nsteps = 0
@@ -648,14 +649,8 @@ contains
         call dsm_height(dsm, x_in%lat, x_in%lon, hs, code)
       end if
     end if
-    if (code == pt_nodata) then
-      call set_event(dsm, s, l, r_in, ray_no_data, res)
-      return
-    end if
-    if (code == pt_ok .and. x_in%h <= hs) then
-      call set_hit(dsm, s, l, r_in, ray_hit, res)
-      return
-    end if
+    call settle_start(dsm, s, l, r_in, x_in%h, hs, code, res, done)
+    if (done) return
     if (.not. (r_end - r_in <= fast_maxlen * dsm%a)) then
       ok = .false.
       return
@@ -669,8 +664,8 @@ contains
   !> at rc lies in the slab and descends: H_min < h(rc) <= H_max and h'(rc) < 0,
   !> so that h >= h(rc) > H_min on [0, rc] (h is convex along the line, its
   !> tangent at rc a lower bound). The search then starts at rc: first a short
-  !> piece of about four cells of horizontal travel, which holds the first event
-  !> of almost every certified ray (it stops at most a unit before it), never
+  !> piece of 1.5 cells of horizontal travel, which holds the first event of
+  !> almost every certified ray (it stops about a unit before it), never
   !> past the tangent's H_min crossing (so inside the slab), then the rest of the
   !> slab as fast_ray searches it.
   pure subroutine fast_from(dsm, s, l, rc, res, ok, used)
@@ -681,6 +676,7 @@ contains
     type(xpt_t) :: x_in, x1, x_end
     real(dp) :: hs, len1, cell, hor, r_end
     integer :: code, outcome, nseg
+    logical :: done
     ok = .true.
     used = .false.
     if (.not. (rc > 0.0_dp .and. rc < huge(1.0_dp))) return
@@ -689,14 +685,8 @@ contains
     if (.not. (x_in%h > dsm%hmin .and. x_in%h <= dsm%hmax .and. x_in%dh < 0.0_dp)) return
     used = .true.
     call dsm_height(dsm, x_in%lat, x_in%lon, hs, code)
-    if (code == pt_nodata) then
-      call set_event(dsm, s, l, rc, ray_no_data, res)
-      return
-    end if
-    if (code == pt_ok .and. x_in%h <= hs) then
-      call set_hit(dsm, s, l, rc, ray_hit, res)
-      return
-    end if
+    call settle_start(dsm, s, l, rc, x_in%h, hs, code, res, done)
+    if (done) return
     cell = dsm%a * max(abs(dsm%dlat), dsm%dlon * cos(x_in%lat))
     hor = sqrt(max(0.0_dp, 1.0_dp - x_in%dh**2))
     len1 = min(1.5_dp * cell / max(hor, 0.05_dp), (1.0_dp - 1.0e-9_dp) * (x_in%h - dsm%hmin) / (-x_in%dh))

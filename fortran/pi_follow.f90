@@ -19,8 +19,8 @@ module pi_follow
   private
 
   public :: dsm_ray_t, follow_ray, iterate_ray, ray_geo, level_crossing, level_crossing_back, &
-            ellipsoid_entry, set_hit, set_event, refine_tol, follow_maxsteps, iter_maxit, iter_tol, &
-            nadir_tol
+            ellipsoid_entry, set_hit, set_event, settle_start, refine_tol, follow_maxsteps, iter_maxit, &
+            iter_tol, nadir_tol
 
   !> Refinement and exact-mode tolerance on r (units of a; 1e-6 m for Earth in metres).
   real(dp), parameter :: refine_tol = 1.0e-6_dp
@@ -182,6 +182,26 @@ contains
     call dsm_height(dsm, res%lat, res%lon, res%hs, code)
     res%incidence = acos(max(-1.0_dp, min(1.0_dp, -dh)))   ! from the normal: 0 = looking straight down
   end subroutine set_hit
+
+  !> The exact modes' start point r (the first point searched, h its height,
+  !> hs and code the DSM there, as dsm_height gives them): over no-data it is
+  !> the no-data event, at or below the surface the hit; done = .false. if
+  !> neither (the search goes on).
+  pure subroutine settle_start(dsm, s, l, r, h, hs, code, res, done)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3), r, h, hs
+    integer, intent(in) :: code
+    type(dsm_ray_t), intent(inout) :: res
+    logical, intent(out) :: done
+    done = .true.
+    if (code == pt_nodata) then
+      call set_event(dsm, s, l, r, ray_no_data, res)
+    else if (code == pt_ok .and. h <= hs) then
+      call set_hit(dsm, s, l, r, ray_hit, res)
+    else
+      done = .false.
+    end if
+  end subroutine settle_start
 
   !> Fill res's event point (no-data / left the DSM) at distance r.
   pure subroutine set_event(dsm, s, l, r, status, res)

@@ -134,7 +134,7 @@ contains
   !> bit for bit); it falls back to it on the axis, the equatorial plane, or
   !> where the point's normal is more than 0.01 rad from the reference's.
   !>
-  !> * Newton on Eberly's F(t) in the same shrinking bracket, started at
+  !> * Newton on Eberly's F(t) in the same shrinking bracket (eberly_root), started at
   !>   t = h_est a^2 / N_r (h = t N / a^2 at the foot point). A Newton step d
   !>   leaves an error <= (F''/2|F'|) d^2 <= 1.5 d^2 / (t + b^2) after it, so
   !>   a step |d| <= 1e-8 (|t| + a^2) is accepted (error <= 1.5e-16 (a/b)^2
@@ -150,10 +150,8 @@ contains
                                             lat, lon, h, nx, ny, nz)
     real(dp), intent(in) :: x, y, z, a, f, lat_r, lon_r, nx_r, ny_r, nz_r, h_est
     real(dp), intent(out) :: lat, lon, h, nx, ny, nz
-    real(dp) :: b, a2, b2, e2, y0, y1, x0, x1, t, lo, hi, fv, dfv, tn, q0, q1, g0, g1, gn, cr, sr, den, arg
+    real(dp) :: b, a2, b2, e2, y0, y1, x0, x1, t, lo, hi, g0, g1, gn, cr, sr, den, arg
     real(dp) :: rho
-    integer :: it
-    logical :: newton
     b = a * (1.0_dp - f)
     a2 = a * a
     b2 = b * b
@@ -170,30 +168,7 @@ contains
     end if
     lo = -b2 + b * y1
     hi = -b2 + sqrt(a2 * y0 * y0 + b2 * y1 * y1)
-    t = h_est * a2 * sqrt(1.0_dp - e2 * sr * sr) / a       ! h_est a^2 / N_r
-    if (.not. (t > lo .and. t < hi)) t = 0.5_dp * (lo + hi)
-    do it = 1, geo_maxit
-      q0 = a * y0 / (t + a2)
-      q1 = b * y1 / (t + b2)
-      fv = q0 * q0 + q1 * q1 - 1.0_dp
-      if (fv > 0.0_dp) then
-        lo = t
-      else if (fv < 0.0_dp) then
-        hi = t
-      else
-        exit
-      end if
-      dfv = -2.0_dp * (q0 * q0 / (t + a2) + q1 * q1 / (t + b2))
-      tn = t - fv / dfv
-      newton = tn > lo .and. tn < hi
-      if (.not. newton) tn = 0.5_dp * (lo + hi)
-      if (abs(tn - t) <= 1.0e-15_dp * (abs(t) + a2) .or. .not. (hi - lo > 0.0_dp) .or. &
-          (newton .and. t > -0.5_dp * b2 .and. abs(tn - t) <= 1.0e-8_dp * (abs(t) + a2))) then
-        t = tn
-        exit
-      end if
-      t = tn
-    end do
+    t = eberly_root(y0, y1, a, b, h_est * a2 * sqrt(1.0_dp - e2 * sr * sr) / a, lo, hi, .true.)   ! h_est a^2 / N_r
     x0 = a2 * y0 / (t + a2)
     x1 = b2 * y1 / (t + b2)
     g0 = x0 / a2
@@ -226,6 +201,48 @@ contains
     end function atan_small
   end subroutine ecr_to_geodetic_near
 
+  !> The root t of Eberly's F(t) = (a y0/(t + a^2))^2 + (b y1/(t + b^2))^2 - 1
+  !> (convex, decreasing on (-b^2, inf)) by Newton from t0 inside the bracket
+  !> (lo, hi), which bisection keeps shrinking: at most geo_maxit steps. Stops
+  !> at a step <= 1e-15 (|t| + a^2) or a closed bracket; with early, also after a
+  !> Newton step d <= 1e-8 (|t| + a^2) (t > -b^2/2), which leaves an error
+  !> <= 1.5 d^2 / (t + b^2) (F''/2|F'| <= 1.5/(t + b^2)): 1.5e-16 relative.
+  elemental function eberly_root(y0, y1, a, b, t0, lo0, hi0, early) result(t)
+    real(dp), intent(in) :: y0, y1, a, b, t0, lo0, hi0
+    logical, intent(in) :: early
+    real(dp) :: t, lo, hi, a2, b2, q0, q1, fv, dfv, tn
+    integer :: it
+    logical :: newton
+    a2 = a * a
+    b2 = b * b
+    lo = lo0
+    hi = hi0
+    t = t0
+    if (.not. (t > lo .and. t < hi)) t = 0.5_dp * (lo + hi)
+    do it = 1, geo_maxit
+      q0 = a * y0 / (t + a2)
+      q1 = b * y1 / (t + b2)
+      fv = q0 * q0 + q1 * q1 - 1.0_dp
+      if (fv > 0.0_dp) then
+        lo = t
+      else if (fv < 0.0_dp) then
+        hi = t
+      else
+        exit
+      end if
+      dfv = -2.0_dp * (q0 * q0 / (t + a2) + q1 * q1 / (t + b2))
+      tn = t - fv / dfv
+      newton = tn > lo .and. tn < hi
+      if (.not. newton) tn = 0.5_dp * (lo + hi)
+      if (abs(tn - t) <= 1.0e-15_dp * (abs(t) + a2) .or. .not. (hi - lo > 0.0_dp) .or. &
+          (early .and. newton .and. t > -0.5_dp * b2 .and. abs(tn - t) <= 1.0e-8_dp * (abs(t) + a2))) then
+        t = tn
+        exit
+      end if
+      t = tn
+    end do
+  end function eberly_root
+
   !> The exact conversion behind ecr_to_geodetic (bowring = .true.: Newton
   !> started from Bowring's one-step estimate) and ecr_to_geodetic_nb
   !> (.false.: started from t = 0); everything else is shared: Eberly's F(t),
@@ -235,9 +252,8 @@ contains
     logical, intent(in) :: bowring
     real(dp), intent(out) :: lat, lon, h
     real(dp), intent(out), optional :: nx, ny, nz
-    real(dp) :: b, a2, b2, e2, y0, y1, x0, x1, t, lo, hi, fv, dfv, tn, q0, q1, g0, g1, gn
+    real(dp) :: b, a2, b2, e2, y0, y1, x0, x1, t, lo, hi, g0, g1, gn
     real(dp) :: latb, hb, sl, nn, rho
-    integer :: it
     b = a * (1.0_dp - f)
     a2 = a * a
     b2 = b * b
@@ -276,28 +292,7 @@ contains
         ! Newton steps then approach it from the left)
         t = 0.0_dp
       end if
-      if (.not. (t > lo .and. t < hi)) t = 0.5_dp * (lo + hi)
-      do it = 1, geo_maxit
-        q0 = a * y0 / (t + a2)
-        q1 = b * y1 / (t + b2)
-        fv = q0 * q0 + q1 * q1 - 1.0_dp
-        if (fv > 0.0_dp) then
-          lo = t
-        else if (fv < 0.0_dp) then
-          hi = t
-        else
-          exit
-        end if
-        dfv = -2.0_dp * (q0 * q0 / (t + a2) + q1 * q1 / (t + b2))
-        tn = t - fv / dfv
-        if (.not. (tn > lo .and. tn < hi)) tn = 0.5_dp * (lo + hi)
-        if (abs(tn - t) <= 1.0e-15_dp * (abs(t) + a2) .or. &
-            .not. (hi - lo > 0.0_dp)) then
-          t = tn
-          exit
-        end if
-        t = tn
-      end do
+      t = eberly_root(y0, y1, a, b, t, lo, hi, .false.)
       x0 = a2 * y0 / (t + a2)
       x1 = b2 * y1 / (t + b2)
     end if
