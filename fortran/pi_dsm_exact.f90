@@ -34,7 +34,7 @@ module pi_dsm_exact
                        set_hit, set_event, settle_start, refine_tol
   use pi_geodetic, only: ecr_to_geodetic
   use pi_dsm_fast, only: fast_ray
-  use pi_dsm_sweep, only: sweep_fan
+  use pi_dsm_sweep, only: sweep_fans
   use pi_ieee, only: nan_dp, ieee_is_finite => is_finite, ieee_is_nan => is_nan
   !$ use omp_lib, only: omp_get_max_threads
   implicit none
@@ -364,7 +364,7 @@ contains
     integer, intent(out) :: status(n), nsteps(n), stat
     !> rays per fan (0 or 1: none)
     integer, intent(in), optional :: fan
-    integer :: k, nt, g, ng, nf, k0, k1
+    integer :: k, nt, nf
     real(dp) :: nan
     real(dp), allocatable :: rclear(:)
     logical :: fans
@@ -383,17 +383,7 @@ contains
     fans = nf >= 2 .and. method == dsm_method_exact
     if (fans) then
       allocate(rclear(n))
-      rclear = 0.0_dp
-      ng = (n + nf - 1) / nf
-      !$omp parallel do schedule(dynamic, 1) num_threads(nt) default(shared) private(g, k0, k1, k)
-      do g = 1, ng
-        k0 = (g - 1) * nf + 1
-        k1 = min(n, g * nf)
-        if (k1 - k0 < 1) cycle
-        if (all(s(1, k0:k1) == s(1, k0) .and. s(2, k0:k1) == s(2, k0) .and. s(3, k0:k1) == s(3, k0))) &
-          call sweep_fan(dsm, s(:, k0), l(:, k0:k1), k1 - k0 + 1, rclear(k0:k1))
-      end do
-      !$omp end parallel do
+      call sweep_fans(dsm, n, s, l, nf, nt, rclear)
     end if
     !$omp parallel do schedule(dynamic, 64) num_threads(nt) default(shared) private(k)
     do k = 1, n

@@ -60,10 +60,11 @@ module pi_dsm_sweep
   use pi_dsm, only: dsm_t, dsm_grid_uv, interp_nearest
   use pi_follow, only: ellipsoid_entry
   use pi_geodetic, only: ecr_to_geodetic_nb
+  !$ use omp_lib, only: omp_get_max_threads
   implicit none
   private
 
-  public :: sweep_fan, sweep_chunk_max
+  public :: sweep_fan, sweep_fans, sweep_chunk_max
 
   !> rays per chunk: each chunk has its own plane and corridor (short chunks
   !> keep the corridor's curvature margin and its off-plane widening small)
@@ -80,6 +81,32 @@ module pi_dsm_sweep
   integer, parameter :: sweep_units_per_ray = 16
 
 contains
+
+  !> Certified clear distances rclear(n) of n rays in consecutive groups of fan
+  !> (the last may be shorter): each group whose rays share one focal point
+  !> (s equal bit for bit) is one fan (sweep_fan); other groups, and all rays
+  !> when fan < 2, get 0. OpenMP over the groups (threads <= 0: all); each
+  !> group's answer is its own, so the results do not depend on the count.
+  subroutine sweep_fans(dsm, n, s, l, fan, threads, rclear)
+    type(dsm_t), intent(in) :: dsm
+    integer, intent(in) :: n, fan, threads
+    real(dp), intent(in) :: s(3, n), l(3, n)
+    real(dp), intent(out) :: rclear(n)
+    integer :: g, k0, k1, nt
+    rclear = 0.0_dp
+    if (fan < 2) return
+    nt = 1
+    !$ nt = omp_get_max_threads()
+    if (threads > 0) nt = threads
+    !$omp parallel do schedule(dynamic, 1) num_threads(nt) default(shared) private(g, k0, k1)
+    do g = 1, (n + fan - 1) / fan
+      k0 = (g - 1) * fan + 1
+      k1 = min(n, g * fan)
+      if (k1 > k0 .and. all(s(1, k0:k1) == s(1, k0) .and. s(2, k0:k1) == s(2, k0) .and. s(3, k0:k1) == s(3, k0))) &
+        call sweep_fan(dsm, s(:, k0), l(:, k0:k1), k1 - k0 + 1, rclear(k0:k1))
+    end do
+    !$omp end parallel do
+  end subroutine sweep_fans
 
   !> Certified clear distances rclear(1:m) for m rays from the focal point s
   !> (ECR, units of a) with directions l(3, m) (any non-zero length), all on

@@ -340,12 +340,13 @@ end subroutine core_dsm_trace
 
 !> The line sweep alone (tests): certified clear distances rclear(n) of rays
 !> in consecutive groups of fan sharing one focal point (groups whose focal
-!> points differ get 0), pi_dsm_sweep::sweep_fan. Grid as core_dsm_trace.
+!> points differ get 0), pi_dsm_sweep::sweep_fans, as core_dsm_trace runs it.
+!> Grid as core_dsm_trace.
 subroutine core_dsm_sweep(ncols, nrows, hgt, lat0, lon0, dlat, dlon, a, f, interp, hmax, hmin, &
                           npyr, pyr, nlev, meta, n, s, l, fan, rclear)
   use pi_kinds, only: dp
   use pi_dsm, only: dsm_t, dsm_attach
-  use pi_dsm_sweep, only: sweep_fan
+  use pi_dsm_sweep, only: sweep_fans
   implicit none
   integer, intent(in) :: ncols, nrows, interp, npyr, nlev, n, fan
   real(dp), intent(in), target :: hgt(ncols, nrows), pyr(npyr)
@@ -353,17 +354,8 @@ subroutine core_dsm_sweep(ncols, nrows, hgt, lat0, lon0, dlat, dlon, a, f, inter
   real(dp), intent(in) :: lat0, lon0, dlat, dlon, a, f, hmax, hmin, s(3, n), l(3, n)
   real(dp), intent(out) :: rclear(n)
   type(dsm_t) :: dsm
-  integer :: k0, k1
   call dsm_attach(hgt, lat0, lon0, dlat, dlon, a, f, interp, hmax, hmin, pyr, meta, dsm)
-  rclear = 0.0_dp
-  if (fan < 2) return
-  k0 = 1
-  do while (k0 <= n)
-    k1 = min(n, k0 + fan - 1)
-    if (k1 > k0 .and. all(s(1, k0:k1) == s(1, k0) .and. s(2, k0:k1) == s(2, k0) .and. s(3, k0:k1) == s(3, k0))) &
-      call sweep_fan(dsm, s(:, k0), l(:, k0:k1), k1 - k0 + 1, rclear(k0:k1))
-    k0 = k1 + 1
-  end do
+  call sweep_fans(dsm, n, s, l, fan, 1, rclear)
 end subroutine core_dsm_sweep
 
 !> The DSM per-ray codes as compiled (no_data, left_dsm, dsm_miss,
