@@ -34,7 +34,7 @@ module pi_dsm_exact
                        set_hit, set_event, settle_start, refine_tol
   use pi_geodetic, only: ecr_to_geodetic
   use pi_dsm_fast, only: fast_ray
-  use pi_dsm_sweep, only: sweep_fans
+  use pi_dsm_sweep, only: sweep_fans, sweep_runs
   use pi_ieee, only: nan_dp, ieee_is_finite => is_finite, ieee_is_nan => is_nan
   !$ use omp_lib, only: omp_get_max_threads
   implicit none
@@ -356,13 +356,15 @@ contains
   !> first swept as a whole (pi_dsm_sweep) and each ray's search starts at its
   !> certified clear distance (pi_dsm_fast's fast_from). The answers are the
   !> exact mode's to its tolerance, not bit for bit those without fans.
+  !> fan = -1 (pi_dsm_sweep's sweep_runs): the groups are the runs of
+  !> consecutive rays with one focal point (pi.intersect's exact method).
   subroutine dsm_trace_packed(dsm, n, s, l, method, threads, p, q, scal, status, nsteps, stat, fan)
     type(dsm_t), intent(in) :: dsm
     integer, intent(in) :: n, method, threads
     real(dp), intent(in) :: s(3, n), l(3, n)
     real(dp), intent(out) :: p(3, n), q(3, n), scal(10, n)
     integer, intent(out) :: status(n), nsteps(n), stat
-    !> rays per fan (0 or 1: none)
+    !> rays per fan (0 or 1: none; -1: runs of one focal point)
     integer, intent(in), optional :: fan
     integer :: k, nt, nf
     real(dp) :: nan
@@ -380,7 +382,7 @@ contains
     if (threads > 0) nt = threads
     nf = 0
     if (present(fan)) nf = fan
-    fans = nf >= 2 .and. method == dsm_method_exact
+    fans = (nf >= 2 .or. nf == sweep_runs) .and. method == dsm_method_exact
     if (fans) then
       allocate(rclear(n))
       call sweep_fans(dsm, n, s, l, nf, nt, rclear)

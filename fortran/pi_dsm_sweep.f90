@@ -64,7 +64,7 @@ module pi_dsm_sweep
   implicit none
   private
 
-  public :: sweep_fan, sweep_fans, sweep_chunk_max
+  public :: sweep_fan, sweep_fans, sweep_chunk_max, sweep_runs
 
   !> rays per chunk: each chunk has its own plane and corridor (short chunks
   !> keep the corridor's curvature margin and its off-plane widening small)
@@ -79,29 +79,61 @@ module pi_dsm_sweep
   !> would not pay; a fan plane tilted from the vertical has a corridor as wide as the slab's
   !> footprint, (H_max - H_min) tan(tilt), and gets none.
   integer, parameter :: sweep_units_per_ray = 16
+  !> sweep_fans' fan argument for groups found from the focal points (runs)
+  integer, parameter :: sweep_runs = -1
+  !> most rays of one group in runs mode (a frame camera's single focal point:
+  !> the threads share its work; a multiple of sweep_chunk_max, so that only
+  !> a run's last group can end in a short chunk)
+  integer, parameter :: sweep_group_max = 8 * sweep_chunk_max
 
 contains
 
   !> Certified clear distances rclear(n) of n rays in consecutive groups of fan
   !> (the last may be shorter): each group whose rays share one focal point
   !> (s equal bit for bit) is one fan (sweep_fan); other groups, and all rays
-  !> when fan < 2, get 0. OpenMP over the groups (threads <= 0: all); each
-  !> group's answer is its own, so the results do not depend on the count.
+  !> when fan is 0 or 1, get 0. fan = sweep_runs (-1): the groups are the
+  !> maximal runs of consecutive rays with one focal point (pi.intersect: a
+  !> pushbroom's lines or a frame camera's rows given as (n, 3) arrays), cut
+  !> into groups of at most sweep_group_max rays; runs of one ray get 0.
+  !> OpenMP over the groups (threads <= 0: all); each group's answer is its
+  !> own, so the results do not depend on the count.
   subroutine sweep_fans(dsm, n, s, l, fan, threads, rclear)
     type(dsm_t), intent(in) :: dsm
     integer, intent(in) :: n, fan, threads
     real(dp), intent(in) :: s(3, n), l(3, n)
     real(dp), intent(out) :: rclear(n)
-    integer :: g, k0, k1, nt
+    integer :: g, k0, k1, nt, ng, k
+    integer, allocatable :: gstart(:)
     rclear = 0.0_dp
-    if (fan < 2) return
+    if (n < 2 .or. (fan < 2 .and. fan /= sweep_runs)) return
+    if (fan == sweep_runs) then
+      ! group starts: a new group where the focal point changes or the group is full
+      allocate(gstart(n + 1))
+      ng = 1
+      gstart(1) = 1
+      do k = 2, n
+        if (s(1, k) /= s(1, k - 1) .or. s(2, k) /= s(2, k - 1) .or. s(3, k) /= s(3, k - 1) .or. &
+            k - gstart(ng) >= sweep_group_max) then
+          ng = ng + 1
+          gstart(ng) = k
+        end if
+      end do
+      gstart(ng + 1) = n + 1
+    else
+      ng = (n + fan - 1) / fan
+      allocate(gstart(ng + 1))
+      do g = 1, ng
+        gstart(g) = (g - 1) * fan + 1
+      end do
+      gstart(ng + 1) = n + 1
+    end if
     nt = 1
     !$ nt = omp_get_max_threads()
     if (threads > 0) nt = threads
     !$omp parallel do schedule(dynamic, 1) num_threads(nt) default(shared) private(g, k0, k1)
-    do g = 1, (n + fan - 1) / fan
-      k0 = (g - 1) * fan + 1
-      k1 = min(n, g * fan)
+    do g = 1, ng
+      k0 = gstart(g)
+      k1 = gstart(g + 1) - 1
       if (k1 > k0 .and. all(s(1, k0:k1) == s(1, k0) .and. s(2, k0:k1) == s(2, k0) .and. s(3, k0:k1) == s(3, k0))) &
         call sweep_fan(dsm, s(:, k0), l(:, k0:k1), k1 - k0 + 1, rclear(k0:k1))
     end do

@@ -316,6 +316,69 @@ def test_threads_give_identical_results(city):
         np.testing.assert_array_equal(x, y)
 
 
+
+# ------------------------------------------------------------------ runs (pi.intersect)
+RUNS = -1                                      # fan = sweep_runs: groups from the focal points
+
+
+def test_runs_group_as_the_lines(city):
+    """fan = -1 finds the lines itself: the same certificates, bit for bit, as giving their length;
+    where lines of different lengths and lone rays alternate (no fixed fan length fits), each line
+    still gets its own, and lone rays none."""
+    dsm = _dsm(city, "bilinear", holes=10, seed=2)
+    s, l, npx = oblique_lines(city, 25.0, 270.0, lines=8)          # lines along the view: vertical planes
+    np.testing.assert_array_equal(sweep(dsm, s, l, RUNS), sweep(dsm, s, l, npx))
+    assert np.mean(sweep(dsm, s, l, RUNS) > 0) > 0.8
+    # lines cut to 300, 17, 1 (a lone ray) and 120 pixels, then each line's own sweep
+    cuts = [300, 17, 1, 120]
+    ss, ll, parts = [], [], []
+    for k, m in enumerate(cuts * 2):
+        a = k * npx
+        ss.append(s[a:a + m]); ll.append(l[a:a + m]); parts.append(m)
+    S, L = np.concatenate(ss), np.concatenate(ll)
+    rc = sweep(dsm, S, L, RUNS)
+    a = 0
+    for x, y, m in zip(ss, ll, parts):
+        own = sweep(dsm, x, y, m) if m > 1 else np.zeros(1)
+        np.testing.assert_array_equal(rc[a:a + m], own)
+        a += m
+    assert np.all(rc[np.cumsum(parts)[np.array(parts) == 1] - 1] == 0.0)          # lone rays: none
+    check(dsm, S, L, RUNS)
+
+
+def test_runs_frame_camera_one_focal_point(city):
+    """A frame camera's 24 x 200 rays from one focal point: one run of 4,800 rays, cut into groups
+    (pi_dsm_sweep's sweep_group_max) and chunks; sound, the same answers as without fans; and
+    pi.intersect, which passes runs, returns the core's answers with runs (to 1e-8 m: the two
+    normalise the directions differently, an ulp apart)."""
+    dsm = _dsm(city, "nearest", holes=15, seed=4)
+    lat_c = city["lat_first"] + 0.5 * (dsm.nrows - 1) * city["dlat"]
+    lon_c = city["lon_first"] + 0.5 * (dsm.ncols - 1) * city["dlon"]
+    c = geodetic_to_ecef(lat_c, lon_c, float(np.nanmedian(dsm.heights)))
+    up = c / np.linalg.norm(c)
+    pos = c + 1500.0 * up
+    cam = pi.FrameCamera.pinhole(pos, c, (200, 24), ifov=0.03, up=np.array([0.0, 0.0, 1.0]))
+    s, l = cam.rays()
+    s = np.ascontiguousarray(np.broadcast_to(s, l.shape))
+    frac, _, _ = check(dsm, s, l, RUNS)
+    assert frac > 0.3, frac
+    res = pi.intersect(dsm, s[:1], l, method="exact", threads=1)     # one s for all: broadcast, one run
+    st, r, _ = trace(dsm, s, l, RUNS)
+    np.testing.assert_array_equal(np.asarray(res.status), st)
+    hit = st == HIT
+    np.testing.assert_allclose(np.asarray(res.distance)[hit], r[hit], rtol=0, atol=1e-8)
+
+
+def test_runs_scattered_rays_from_one_point(city):
+    """Rays from one point in shuffled directions (no fan's plane): sound, and the same answers."""
+    dsm = _dsm(city, "bilinear")
+    rng = np.random.default_rng(8)
+    s, l, _ = oblique_lines(city, 20.0, 300.0, lines=6)
+    l = l[rng.permutation(len(l))] + rng.normal(0.0, 0.02, l.shape)
+    s = np.repeat(s[:1], len(l), axis=0)
+    check(dsm, s, l, RUNS)
+
+
 # ------------------------------------------------------------------ fuzzing
 hypothesis = pytest.importorskip("hypothesis", reason="fuzzing needs hypothesis")
 from hypothesis import HealthCheck, given, settings  # noqa: E402
@@ -355,4 +418,5 @@ def test_fuzz_fans(case):
                                     interpolation=interp)
     s, l = random_fans(g, 3, m, seed, off_plane=off, height=(height, height), zen=(zen, zen), reach=1.5,
                        skew=skew)
-    check(dsm, s, l, m)
+    _, _, rc = check(dsm, s, l, m)
+    np.testing.assert_array_equal(sweep(dsm, s, l, RUNS), rc)       # runs find the same three fans

@@ -423,6 +423,10 @@ def intersect_dsm(dsm: GeodeticDSM, s, l, method: str = "following", threads: in
         "following" (default): the paper's ray following (steps 1-5, eqs. 1-5,
         refinement by safeguarded false position to 1e-6 along the ray).
         "exact": the first entry into the surface (to 1e-6 along the ray).
+        Consecutive rays with the same focal point (a pushbroom's line, a
+        frame camera's row: ``s`` repeated bit for bit, or one ``s`` for all)
+        are swept together first, which speeds them up; a ray's answer can
+        then differ from the same ray's alone within that tolerance.
         "iterative": the conventional iterative ray tracing (status
         OSCILLATION / NOT_CONVERGED where it fails).
     threads : int, optional
@@ -445,7 +449,7 @@ def intersect_dsm(dsm: GeodeticDSM, s, l, method: str = "following", threads: in
     _choice(method, "method (for a GeodeticDSM)", tuple(_DSM_METHODS))
     _choice(outside, "outside", ("none", "ellipsoid"))
     check_threads(threads, 1)
-    n, s, l, p, q, scal, status, nsteps = _trace_raw(dsm, s, l, method, threads)
+    n, s, l, p, q, scal, status, nsteps = _trace_raw(dsm, s, l, method, threads, fan=FAN_RUNS)
     if n == 0:
         return _empty_result()
     nan3 = np.full((n, 3), np.nan)
@@ -489,6 +493,11 @@ def _npz_arrays(path, required, what: str, error=ValueError, hint: str = "") -> 
     return d
 
 
+#: ``_trace_raw``'s ``fan`` for groups found from the focal points: runs of
+#: consecutive rays with one focal point (pi_dsm_sweep's sweep_runs)
+FAN_RUNS = -1
+
+
 def _trace_raw(dsm: GeodeticDSM, s, l, method: str, threads, fan: int = 0):
     """The checks and the core call shared by :func:`intersect_dsm` and the image
     simulation: (n, s, l, p, q, scal, status, nsteps) as the core returns them
@@ -498,7 +507,9 @@ def _trace_raw(dsm: GeodeticDSM, s, l, method: str, threads, fan: int = 0):
     ``fan`` >= 2 (the simulation: the pixels of a line): the rays come in
     consecutive groups of ``fan``; for the exact method, a group whose rays share
     one focal point is swept as a whole first (fortran/pi_dsm_sweep.f90), which
-    changes the answers only within the exact mode's tolerance."""
+    changes the answers only within the exact mode's tolerance. ``fan`` =
+    ``FAN_RUNS`` (pi.intersect): the groups are the runs of consecutive rays
+    with one focal point (s equal bit for bit), whatever their lengths."""
     from ._ext import core as _core
     from .intersect import FAR_LIMIT, _unit_scaled, as_vectors, check_threads
 
