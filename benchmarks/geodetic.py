@@ -173,7 +173,7 @@ def measure(spec: dict) -> dict:
 
 
 def measure_alternating(spec: dict) -> dict:
-    """Ratios of the exact mode to the following and to Rugged with the three called in turn
+    """Ratios of the exact mode to the following and to Rugged, and of two threads to one, called in turn
     in one process, ``rounds`` times on the same rays (each timed on its second call): this machine's speed moves
     by up to 1.5x between processes, so ratios across separate processes are noisy; per-round
     ratios in one process are not. Returns the median and the range of each ratio."""
@@ -192,20 +192,22 @@ def measure_alternating(spec: dict) -> dict:
         rug.rays_per_second(s, l, warmup=3, repeats=1)            # JIT warm-up
     for method in ("exact", "following"):
         pi.intersect(dsm, s, l, method=method, threads=1)        # warm-up
-    def timed(method):
+    def timed(method, threads=1):
         # the second of two calls: each method warm (its data in cache), as the separate-process medians
-        pi.intersect(dsm, s, l, method=method, threads=1)
+        pi.intersect(dsm, s, l, method=method, threads=threads)
         t0 = time.perf_counter()
-        pi.intersect(dsm, s, l, method=method, threads=1)
+        pi.intersect(dsm, s, l, method=method, threads=threads)
         return time.perf_counter() - t0
 
-    fol, rg = [], []
+    fol, rg, two = [], [], []
     for _ in range(spec.get("rounds", 7)):
         te = timed("exact")
         fol.append(timed("following") / te)
+        two.append(te / timed("exact", threads=2))
         if rug is not None:                                      # its Java loop's own clock (1 warm + 3 timed)
             rg.append(len(s) / rug.rays_per_second(s, l, warmup=1, repeats=3) / te)
-    out = {"rounds": len(fol), "exact_over_following": [float(np.median(fol)), min(fol), max(fol)]}
+    out = {"rounds": len(fol), "exact_over_following": [float(np.median(fol)), min(fol), max(fol)],
+           "two_threads_over_one": [float(np.median(two)), min(two), max(two)]}
     if rg:
         out["exact_over_rugged"] = [float(np.median(rg)), min(rg), max(rg)]
     return out
@@ -261,9 +263,10 @@ def main(argv=None) -> int:
         if "exact_over_following" in alt:
             ef = alt["exact_over_following"]
             er = alt.get("exact_over_rugged")
+            tw = alt["two_threads_over_one"]
             print(f"{sc:22s} in turn, one process: exact = {ef[0]:.2f}x following ({ef[1]:.2f}-{ef[2]:.2f})"
-                  + (f", {er[0]:.2f}x Rugged ({er[1]:.2f}-{er[2]:.2f})" if er else ", Rugged not available"),
-                  flush=True)
+                  + (f", {er[0]:.2f}x Rugged ({er[1]:.2f}-{er[2]:.2f})" if er else ", Rugged not available")
+                  + f"; 2 threads {tw[0]:.2f}x one ({tw[1]:.2f}-{tw[2]:.2f})", flush=True)
         else:
             print(f"{sc:22s} in turn, one process: {alt.get('error', '?')}", flush=True)
     machine = dict(machine=platform.machine(), system=platform.system(), python=platform.python_version(),
@@ -304,6 +307,9 @@ def markdown(rows, machine, alts=None) -> str:
             lines.append(f"| {alt['scene']} | exact / following | {ef[0]:.2f} | {ef[1]:.2f}-{ef[2]:.2f} |")
             if er:
                 lines.append(f"| {alt['scene']} | exact / Rugged (Java loop) | {er[0]:.2f} | {er[1]:.2f}-{er[2]:.2f} |")
+            tw = alt.get("two_threads_over_one")
+            if tw:
+                lines.append(f"| {alt['scene']} | exact, 2 threads / 1 | {tw[0]:.2f} | {tw[1]:.2f}-{tw[2]:.2f} |")
     return "\n".join(lines) + "\n"
 
 

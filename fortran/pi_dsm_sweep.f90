@@ -469,7 +469,7 @@ contains
     pure subroutine unit_bounds(i, j, qm, tc)
       integer, intent(in) :: i, j
       real(dp), intent(out) :: qm, tc
-      real(dp) :: z, ztop, dz, db(4), dt(4), fc(10), f, flo, fhi, wp, x, y, cv(4), cr(4)
+      real(dp) :: z, ztop, dz, db(4), dt(4), fc(10), f, flo, fhi, wp, x, y, cv(4), cr(4), eps
       integer :: ke, kf, nc, ev, eu
       logical :: blk, near
       blk = .true.
@@ -518,12 +518,16 @@ contains
           end if
         end if
       end do
+      ! a crossing's own test: db + f (dt - db) is rounded at ~1e-16 of |db| + |dt|, which is far
+      ! more than wp when the rays are coplanar to rounding (w_s ~ 1e-12 m): the slack is relative
+      ! to those magnitudes (without it the crossing of -wp could fail its test and the clip end
+      ! where the plane passes through an edge be lost; found with a frame camera's column fans)
+      eps = 1.0e-12_dp * (wp + maxval(abs(db)) + maxval(abs(dt)))
       flo = huge(1.0_dp)
       fhi = -huge(1.0_dp)
       do kf = 1, nc
         f = fc(kf)
-        if (minval(db + f * (dt - db)) <= wp * (1.0_dp + 1.0e-12_dp) .and. &
-            maxval(db + f * (dt - db)) >= -wp * (1.0_dp + 1.0e-12_dp)) then
+        if (minval(db + f * (dt - db)) <= wp + eps .and. maxval(db + f * (dt - db)) >= -wp - eps) then
           flo = min(flo, f)
           fhi = max(fhi, f)
         end if
