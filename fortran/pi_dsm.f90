@@ -1,6 +1,6 @@
 !> Geodetic digital surface model (Shin & Park): heights above the ellipsoid
 !> (a, f) on a regular grid in geodetic latitude and east longitude,
-!> pixel-centre registered, and the height lookup of docs/dsm-contract rules.
+!> pixel-centre registered, and the height lookup the contract prescribes (DESIGN.md section 8; docs/shin-park-notes.md).
 !>
 !> Grid: hgt(j, i) (Fortran order; Python's heights[i, j]) is the height at
 !> latitude lat0 + i*dlat, longitude lon0 + j*dlon (0-based i, j; radians;

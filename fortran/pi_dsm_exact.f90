@@ -219,7 +219,9 @@ contains
           dr = -g / dh
           r = r + dr
           if (r > pb%r) exit                              ! the first root lies beyond the segment
-          if (dr <= 1.0e-9_dp) then
+          ! (a step below the rounding of r no longer moves it: r >= ~1.7e7 m, a focal point at GEO
+          ! distance, stalled here and the crossing was reported missing)
+          if (dr <= max(1.0e-9_dp, 4.0_dp * spacing(r))) then
             found = .true.
             exit
           end if

@@ -1,5 +1,5 @@
 !> Fast path of the exact DSM mode (method "exact"): the same answer as
-!> pi_dsm_exact's exact_ray (the contract of docs/dsm-contract.md, to
+!> pi_dsm_exact's exact_ray (the guarantee of docs/shin-park-notes.md, "Exact mode", to
 !> refine_tol along the ray), with far fewer exact geodetic conversions
 !> (docs/shin-park-notes.md, "Fast exact path").
 !>
@@ -110,7 +110,7 @@ contains
   end subroutine eval_x
 
   !> The ray point at r from the exact point x a short way before it
-  !> (0 <= r - x%r <= 1e-8 a, ~6 cm on Earth), without a conversion: latitude
+  !> (0 <= r - x%r <= 1e-8 min(a, rho), ~6 cm on Earth), without a conversion: latitude
   !> and longitude to first order along the ray (dpsi/dr = (l.north)/(M + h),
   !> dlambda/dr = (l.east)/((N + h) cos psi); the second-order terms are below
   !> (3/M^2 + 2/rho^2) d^2/2 ~ 3e-16 rad, under the conversion's own rounding
@@ -127,10 +127,12 @@ contains
     real(dp) :: d, cp, w, mm, nn, ln, le
     d = r - x%r
     cp = sqrt(x%nx**2 + x%ny**2)                            ! cos(latitude)
-    ok = d >= 0.0_dp .and. d <= 1.0e-8_dp * dsm%a .and. cp > 1.0e-3_dp
-    if (.not. ok) return
     w = 1.0_dp - dsm%e2 * x%nz**2
     nn = dsm%a / sqrt(w)                                    ! prime vertical radius of curvature
+    ! d at most 1e-8 of the axis distance rho = (N + h) cos(lat) too: the longitude's second-order
+    ! term grows as d^2 / rho^2 (a review measured 7.7e-13 rad 6 km from the pole with d = 1e-8 a)
+    ok = d >= 0.0_dp .and. d <= 1.0e-8_dp * min(dsm%a, (nn + x%h) * cp) .and. cp > 1.0e-3_dp
+    if (.not. ok) return
     mm = nn * (1.0_dp - dsm%e2) / w                         ! meridian radius of curvature
     ! north = (-sin psi cos lambda, -sin psi sin lambda, cos psi), east = (-sin lambda, cos lambda, 0)
     ln = (-x%nz * (l(1) * x%nx + l(2) * x%ny)) / cp + l(3) * cp
@@ -339,8 +341,9 @@ contains
     if (.not. (abs(a0) + abs(a1) + abs(a2) < huge(1.0_dp))) return   ! not finite: leave it to the halving
     ! the tangents' kink in t (tangent A is the larger before it, B after)
     tk = huge(1.0_dp)
-    if (pc%a%dh < pc%b%dh) tk = (pc%b%h - pc%a%h + pc%a%dh * pc%a%r - pc%b%dh * pc%b%r) / (pc%a%dh - pc%b%dh) &
-                                - pa%r
+    ! (relative to A's r: products dh r round at ulp(r), ~7e-9 m from a GEO distance; a review)
+    if (pc%a%dh < pc%b%dh) tk = (pc%b%h - pc%a%h - pc%b%dh * (pc%b%r - pc%a%r)) / (pc%a%dh - pc%b%dh) &
+                                + (pc%a%r - pa%r)
     st = 1
     do side = 1, 2
       if (side == 1) then
@@ -380,27 +383,38 @@ contains
       t = ta
       return
     end if
+    ! where the roots say the polynomial is <= 0, the first point of that set at or after ta (ta
+    ! itself when rounding put ta inside it although the value there came out positive: an earlier
+    ! candidate only costs a classification, a later one could skip an entry; found by a review)
     if (e2 == 0.0_dp) then
       if (e1 < 0.0_dp) then
         r1 = -e0 / e1
-        if (r1 >= ta .and. r1 <= tb) t = r1
+        if (max(ta, r1) <= tb) t = max(ta, r1)
+      else if (e1 > 0.0_dp) then
+        if (ta <= -e0 / e1) t = ta
       end if
       return
     end if
     disc = e1 * e1 - 4.0_dp * e2 * e0
-    if (.not. (disc >= 0.0_dp)) return
-    q = -0.5_dp * (e1 + sign(sqrt(disc), e1))
-    if (q == 0.0_dp) return
+    q = 0.0_dp
+    if (disc >= 0.0_dp) q = -0.5_dp * (e1 + sign(sqrt(disc), e1))
+    if (q == 0.0_dp) then                               ! no roots (or a NaN): <= 0 everywhere when e2 < 0
+      if (e2 < 0.0_dp) t = ta
+      return
+    end if
     r1 = q / e2
     r2 = e0 / q
     if (r1 > r2) then
       w = r1; r1 = r2; r2 = w
     end if
-    ! the polynomial is positive at ta: the first root after ta is where it turns <= 0
-    if (r1 > ta .and. r1 <= tb) then
-      t = r1
-    else if (r2 > ta .and. r2 <= tb) then
-      t = r2
+    if (e2 > 0.0_dp) then                               ! <= 0 on [r1, r2]
+      if (r2 >= ta .and. max(ta, r1) <= tb) t = max(ta, r1)
+    else                                                ! <= 0 outside (r1, r2)
+      if (ta <= r1 .or. ta >= r2) then
+        t = ta
+      else if (r2 <= tb) then
+        t = r2
+      end if
     end if
   end subroutine first_root
 
@@ -457,7 +471,9 @@ contains
       if (.not. (x%dh < 0.0_dp)) return                ! rising or NaN: never reaches the level
       d = -(x%h - level) / x%dh
       r = r + d
-      if (d <= 1.0e-9_dp) then
+      ! (a step below the rounding of r no longer moves it: r >= ~1.7e7 m, a focal point at GEO
+      ! distance, stalled here and the crossing was reported missing)
+      if (d <= max(1.0e-9_dp, 4.0_dp * spacing(r))) then
         found = .true.
         xp = x
         call eval_x(dsm, s, l, r, x, xp)
@@ -527,7 +543,7 @@ contains
     pc%tk = huge(1.0_dp)
     den = xa%dh - xb%dh
     if (den < 0.0_dp) then                                  ! the tangents cross
-      pc%rk = (xb%h - xa%h + xa%dh * xa%r - xb%dh * xb%r) / den
+      pc%rk = xa%r + (xb%h - xa%h - xb%dh * (xb%r - xa%r)) / den   ! (relative to xa%r: as in cell_solve)
       pc%tk = max(xa%h + xa%dh * (pc%rk - xa%r), xb%h + xb%dh * (pc%rk - xb%r))
     end if
     pc%ida = 0.0_dp
@@ -898,7 +914,9 @@ contains
           dr = -g / dh
           r = r + dr
           if (r > pb%r) exit                              ! the first root lies beyond the segment
-          if (dr <= 1.0e-9_dp) then
+          ! (a step below the rounding of r no longer moves it: r >= ~1.7e7 m, a focal point at GEO
+          ! distance, stalled here and the crossing was reported missing)
+          if (dr <= max(1.0e-9_dp, 4.0_dp * spacing(r))) then
             found = .true.
             exit
           end if

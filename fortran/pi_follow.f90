@@ -97,7 +97,9 @@ contains
       if (.not. (dh < 0.0_dp)) return                  ! rising or NaN: never reaches the level
       dr = -(h - level) / dh
       r = r + dr
-      if (dr <= 1.0e-9_dp) then
+      ! (a step below the rounding of r no longer moves it: r >= ~1.7e7 m, a focal point at GEO
+      ! distance, stalled here and the crossing was reported missing)
+      if (dr <= max(1.0e-9_dp, 4.0_dp * spacing(r))) then
         found = .true.
         return
       end if
@@ -126,7 +128,9 @@ contains
       if (.not. (dh > 0.0_dp)) return
       dr = (h - level) / dh
       r = r - dr
-      if (dr <= 1.0e-9_dp) then
+      ! (a step below the rounding of r no longer moves it: r >= ~1.7e7 m, a focal point at GEO
+      ! distance, stalled here and the crossing was reported missing)
+      if (dr <= max(1.0e-9_dp, 4.0_dp * spacing(r))) then
         found = .true.
         return
       end if

@@ -278,3 +278,67 @@ def test_hit_point_fields(city, planet):
     n = np.stack([cphi * np.cos(lon), cphi * np.sin(lon), sphi], axis=1)
     inc = np.arccos(np.clip(-np.einsum("ij,ij->i", l[hit], n), -1.0, 1.0))
     assert np.abs(inc - scal[5][hit]).max() <= 1e-9
+
+
+def test_geostationary_focal_points():
+    """Focal points 3.6e7 m up (a geostationary imager): one ulp of r is 7.45e-9 m there, so a
+    Newton step between 1e-9 m and half an ulp left r where it was, and level crossings that stopped
+    only on a step <= 1e-9 m ran out of iterations: exact_ray (method 3, and method 1 wherever the
+    fast path declines) reported 7 of these 20 hits as misses and, for rays beside the DSM, misses
+    or a hit 23 km underground instead of LEFT_DSM (found by a review). Checked against the
+    exhaustive NumPy reference, which shares none of that code."""
+    from references.dsm_exhaustive import HIT as X_HIT, LEFT_DSM as X_LEFT, exhaustive_first_hit
+
+    g = sd.building_scene(n=256, seed=5)
+    g.pop("roof_id")
+    dsm = pi.GeodeticDSM.from_array(g["heights"], g["lat_first"], g["lon_first"], g["dlat"], g["dlon"],
+                                    interpolation="nearest")
+    grid = dict(lat_first=g["lat_first"], lon_first=g["lon_first"], dlat=g["dlat"], dlon=g["dlon"])
+    s, l = sd.pushbroom_rays(g, 20, altitude=(3.6e7, 3.6e7), off_nadir=(0.0, 0.2), seed=7)
+    ref = exhaustive_first_hit(g["heights"], s=s, l=l, interpolation="nearest", **grid)
+    assert np.all(ref["status"] == X_HIT)
+    for method in (EXACT, REFERENCE):
+        st, r, _ = trace(dsm, s, l, method)
+        np.testing.assert_array_equal(st, HIT)
+        assert np.max(np.abs(r - ref["r"])) < 2 * TOL_R, (method, np.max(np.abs(r - ref["r"])))
+    # aimed beside the DSM (north of it): the answer is LEFT_DSM where the ray leaves it
+    rng = np.random.default_rng(3)
+    nr, nc = g["heights"].shape
+    lat = g["lat_first"] + rng.uniform(1.2, 1.5, 20) * nr * g["dlat"]
+    lon = g["lon_first"] + rng.uniform(0.2, 0.8, 20) * nc * g["dlon"]
+    s2, l2 = _patch_rays(lat, lon, 20, 4, zen=(0.0, 0.5), height=(3.6e7, 3.6e7))
+    ref2 = exhaustive_first_hit(g["heights"], s=s2, l=l2, interpolation="nearest", **grid)
+    assert np.all(ref2["status"] == X_LEFT)
+    for method in (EXACT, REFERENCE):
+        st, r, _ = trace(dsm, s2, l2, method)
+        np.testing.assert_array_equal(st, LEFT_DSM)
+        assert np.max(np.abs(r - ref2["r"])) < 2 * TOL_R, (method, np.max(np.abs(r - ref2["r"])))
+
+
+def test_hit_fields_near_a_pole():
+    """The hit's longitude without a conversion (extrapolate, a first-order step of up to 1e-8 a)
+    erred by d^2 / rho^2: 7.7e-13 rad 6 km from the pole's axis (a review). The step is now also at
+    most 1e-8 of the axis distance: every reported longitude within 1e-13 rad of the references'
+    own conversion of s + r l."""
+    from references.geodesy import ecef_to_geodetic_rad
+
+    rng = np.random.default_rng(1)
+    h = np.round(rng.uniform(0, 3000, (50, 200)), -2)
+    dsm = pi.GeodeticDSM.from_array(h, 89.925, 0.0, 0.0005, 1.0, interpolation="nearest")
+    n = 3000
+    lat = rng.uniform(89.927, 89.925 + 45 * 0.0005, n)
+    lon = rng.uniform(5.0, 190.0, n)
+    s, l = _patch_rays(lat, lon, n, 2, zen=(20.0, 70.0), height=(3e5, 7e5))
+    l = l / np.linalg.norm(l, axis=1, keepdims=True)
+    pyr, meta = dsm.pyramid()
+    g = dsm._core_grid()
+    p, q, scal, status, nsteps, stat = _core.core_dsm_trace(*g[:7], g[7], dsm.hmax, dsm.hmin, pyr, meta.T,
+                                                           np.ascontiguousarray(s).T, np.ascontiguousarray(l).T,
+                                                           EXACT, 1)
+    hit = status == HIT
+    assert hit.sum() > 1500
+    pt = s[hit] + scal[4][hit, None] * l[hit]
+    sphi, cphi, lonr, _ = ecef_to_geodetic_rad(pt[:, 0], pt[:, 1], pt[:, 2])
+    dlon = np.abs(np.angle(np.exp(1j * (lonr - scal[1][hit]))))
+    dlat = np.abs(np.arctan2(sphi, cphi) - scal[0][hit])
+    assert dlon.max() < 1e-13 and dlat.max() < 1e-13, (dlon.max(), dlat.max())
