@@ -472,8 +472,8 @@ contains
       d = -(x%h - level) / x%dh
       r = r + d
       ! (a step below the rounding of r no longer moves it: r >= ~1.7e7 m, a focal point at GEO
-      ! distance, stalled here and the crossing was reported missing)
-      if (d <= max(1.0e-9_dp, 4.0_dp * spacing(r))) then
+      ! distance, stalled here and the crossing was reported missing; 1e-15 |r| >= 4.5 ulp(r))
+      if (d <= max(1.0e-9_dp, 1.0e-15_dp * abs(r))) then
         found = .true.
         xp = x
         call eval_x(dsm, s, l, r, x, xp)
@@ -915,8 +915,8 @@ contains
           r = r + dr
           if (r > pb%r) exit                              ! the first root lies beyond the segment
           ! (a step below the rounding of r no longer moves it: r >= ~1.7e7 m, a focal point at GEO
-          ! distance, stalled here and the crossing was reported missing)
-          if (dr <= max(1.0e-9_dp, 4.0_dp * spacing(r))) then
+          ! distance, stalled here and the crossing was reported missing; 1e-15 |r| >= 4.5 ulp(r))
+          if (dr <= max(1.0e-9_dp, 1.0e-15_dp * abs(r))) then
             found = .true.
             exit
           end if

@@ -98,8 +98,8 @@ contains
       dr = -(h - level) / dh
       r = r + dr
       ! (a step below the rounding of r no longer moves it: r >= ~1.7e7 m, a focal point at GEO
-      ! distance, stalled here and the crossing was reported missing)
-      if (dr <= max(1.0e-9_dp, 4.0_dp * spacing(r))) then
+      ! distance, stalled here and the crossing was reported missing; 1e-15 |r| >= 4.5 ulp(r))
+      if (dr <= max(1.0e-9_dp, 1.0e-15_dp * abs(r))) then
         found = .true.
         return
       end if
@@ -129,8 +129,8 @@ contains
       dr = (h - level) / dh
       r = r - dr
       ! (a step below the rounding of r no longer moves it: r >= ~1.7e7 m, a focal point at GEO
-      ! distance, stalled here and the crossing was reported missing)
-      if (dr <= max(1.0e-9_dp, 4.0_dp * spacing(r))) then
+      ! distance, stalled here and the crossing was reported missing; 1e-15 |r| >= 4.5 ulp(r))
+      if (dr <= max(1.0e-9_dp, 1.0e-15_dp * abs(r))) then
         found = .true.
         return
       end if
