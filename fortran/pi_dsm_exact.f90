@@ -31,7 +31,7 @@ module pi_dsm_exact
   use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, pt_ok, pt_outside, &
                     pt_nodata
   use pi_follow, only: dsm_ray_t, follow_ray, iterate_ray, ray_geo, level_crossing, level_crossing_back, &
-                       set_hit, set_event, settle_start, refine_tol
+                       set_hit, set_event, settle_start, refine_tol, newton_tol
   use pi_geodetic, only: ecr_to_geodetic
   use pi_dsm_fast, only: fast_ray
   use pi_dsm_sweep, only: sweep_fans, sweep_runs
@@ -219,9 +219,7 @@ contains
           dr = -g / dh
           r = r + dr
           if (r > pb%r) exit                              ! the first root lies beyond the segment
-          ! (a step below the rounding of r no longer moves it: r >= ~1.7e7 m, a focal point at GEO
-          ! distance, stalled here and the crossing was reported missing; 1e-15 |r| >= 4.5 ulp(r))
-          if (dr <= max(1.0e-9_dp, 1.0e-15_dp * abs(r))) then
+          if (dr <= newton_tol(r)) then
             found = .true.
             exit
           end if

@@ -35,7 +35,7 @@ module pi_dsm_fast
   use pi_vector, only: pi, axis_distance, far_distance
   use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, pt_ok, pt_nodata
   use pi_follow, only: dsm_ray_t, ray_geo, level_crossing_back, ellipsoid_entry, set_hit, set_event, settle_start, &
-                       refine_tol
+                       refine_tol, newton_tol
   use pi_geodetic, only: ecr_to_geodetic_nb, ecr_to_geodetic_near
   use pi_ieee, only: ieee_is_nan => is_nan        ! (one test per bilinear cell solve: not in the hot loop)
   implicit none
@@ -471,9 +471,7 @@ contains
       if (.not. (x%dh < 0.0_dp)) return                ! rising or NaN: never reaches the level
       d = -(x%h - level) / x%dh
       r = r + d
-      ! (a step below the rounding of r no longer moves it: r >= ~1.7e7 m, a focal point at GEO
-      ! distance, stalled here and the crossing was reported missing; 1e-15 |r| >= 4.5 ulp(r))
-      if (d <= max(1.0e-9_dp, 1.0e-15_dp * abs(r))) then
+      if (d <= newton_tol(r)) then
         found = .true.
         xp = x
         call eval_x(dsm, s, l, r, x, xp)
@@ -914,9 +912,7 @@ contains
           dr = -g / dh
           r = r + dr
           if (r > pb%r) exit                              ! the first root lies beyond the segment
-          ! (a step below the rounding of r no longer moves it: r >= ~1.7e7 m, a focal point at GEO
-          ! distance, stalled here and the crossing was reported missing; 1e-15 |r| >= 4.5 ulp(r))
-          if (dr <= max(1.0e-9_dp, 1.0e-15_dp * abs(r))) then
+          if (dr <= newton_tol(r)) then
             found = .true.
             exit
           end if

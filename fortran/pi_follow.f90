@@ -20,7 +20,7 @@ module pi_follow
 
   public :: dsm_ray_t, follow_ray, iterate_ray, ray_geo, level_crossing, level_crossing_back, &
             ellipsoid_entry, set_hit, set_event, settle_start, refine_tol, follow_maxsteps, iter_maxit, &
-            iter_tol, nadir_tol
+            iter_tol, nadir_tol, newton_tol
 
   !> Refinement and exact-mode tolerance on r (units of a; 1e-6 m for Earth in metres).
   real(dp), parameter :: refine_tol = 1.0e-6_dp
@@ -44,6 +44,18 @@ module pi_follow
   end type dsm_ray_t
 
 contains
+
+  !> Largest Newton step along a ray (units of a) after which a level or cell
+  !> crossing counts as found: 1e-9, or 1e-15 |r| (>= 4.5 ulp(r)) where r is
+  !> so large that a smaller step no longer moves r (r >= ~1.7e7 m, a focal
+  !> point at GEO distance: the loops stalled and reported the crossing
+  !> missing). The one stopping rule of pi_follow's, exact_ray's and the fast
+  !> path's Newton loops.
+  elemental function newton_tol(r) result(tol)
+    real(dp), intent(in) :: r
+    real(dp) :: tol
+    tol = max(1.0e-9_dp, 1.0e-15_dp * abs(r))
+  end function newton_tol
 
   !> Exact geodetic coordinates of P(r) = s + r l and dh/dr = l . n (n the unit
   !> normal at the foot point: the gradient of the geodetic height).
@@ -97,9 +109,7 @@ contains
       if (.not. (dh < 0.0_dp)) return                  ! rising or NaN: never reaches the level
       dr = -(h - level) / dh
       r = r + dr
-      ! (a step below the rounding of r no longer moves it: r >= ~1.7e7 m, a focal point at GEO
-      ! distance, stalled here and the crossing was reported missing; 1e-15 |r| >= 4.5 ulp(r))
-      if (dr <= max(1.0e-9_dp, 1.0e-15_dp * abs(r))) then
+      if (dr <= newton_tol(r)) then
         found = .true.
         return
       end if
@@ -128,9 +138,7 @@ contains
       if (.not. (dh > 0.0_dp)) return
       dr = (h - level) / dh
       r = r - dr
-      ! (a step below the rounding of r no longer moves it: r >= ~1.7e7 m, a focal point at GEO
-      ! distance, stalled here and the crossing was reported missing; 1e-15 |r| >= 4.5 ulp(r))
-      if (dr <= max(1.0e-9_dp, 1.0e-15_dp * abs(r))) then
+      if (dr <= newton_tol(r)) then
         found = .true.
         return
       end if
