@@ -86,16 +86,20 @@ contains
   !> tangents), hb >= the surface over the part of its (lat, lon) box inside the
   !> DSM (+huge: unknown or no-data), out: the box reaches outside the DSM;
   !> cell >= 0 when the box lies within one "nearest" cell (its height in hb);
-  !> rsplit > 0: the estimated crossing of the one cell boundary the box straddles.
-  pure subroutine segment_bounds(dsm, s, l, pa, pb, hlow, hb, out, cell, rsplit)
+  !> rsplit > 0: the estimated crossing of the one cell boundary the box straddles;
+  !> edge (optional): out, but only by its rounding margins (the box shrunk by
+  !> twice them lies inside the grid: the segment runs along the DSM's edge,
+  !> within ~1e-12 rad of it).
+  pure subroutine segment_bounds(dsm, s, l, pa, pb, hlow, hb, out, cell, rsplit, edge)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: s(3), l(3)
     type(rpt_t), intent(in) :: pa, pb
     real(dp), intent(out) :: hlow, hb, rsplit
     logical, intent(out) :: out
     integer, intent(out) :: cell
+    logical, intent(out), optional :: edge
     integer :: ci0, ci1, cj0, cj1
-    real(dp) :: t, ub, rb0
+    real(dp) :: t, ub, rb0, wu, gv, lo
     real(dp) :: rstar, mmin, den, rho, kap, keff, llen, lat_lo, lat_hi, w, v0, v1, u0, u1, du
     llen = pb%r - pa%r
     if (pa%dh >= 0.0_dp) then
@@ -112,6 +116,7 @@ contains
     out = .true.
     cell = -1
     rsplit = 0.0_dp
+    if (present(edge)) edge = .false.
     mmin = dsm%a * (1.0_dp - dsm%e2)                      ! smallest meridian radius of curvature
     den = mmin + min(hlow, 0.0_dp)
     if (.not. (den > 0.5_dp * mmin)) return
@@ -130,9 +135,21 @@ contains
     end if
     du = modulo(pb%lon - pa%lon + pi, 2.0_dp * pi) - pi
     if (.not. (abs(du) < 0.5_dp * pi)) return             ! longitude is monotone: a short sweep only
-    u0 = min(pa%u, pa%u + du / dsm%dlon) - 1.0e-9_dp
-    u1 = max(pa%u, pa%u + du / dsm%dlon) + 1.0e-9_dp
+    ! the margin in u: 1e-9 cells and the rounding of the wrapped longitudes (du and each point's
+    ! u come out of a modulo over +-pi: a few ulps of pi, 2.2e-9 cells on a 1 m grid; with 1e-9
+    ! alone a ray reaching the ground 1.1e-9 cells outside the grid's edge got a box inside it,
+    ! and no LEFT_DSM: it was a MISS, found by a review)
+    wu = 1.0e-9_dp + 8.0_dp * spacing(pi) / dsm%dlon
+    u0 = min(pa%u, pa%u + du / dsm%dlon) - wu
+    u1 = max(pa%u, pa%u + du / dsm%dlon) + wu
     call dsm_box_bound(dsm, u0, u1, v0, v1, hb, out)
+    if (present(edge) .and. out) then
+      gv = 2.0_dp * w / abs(dsm%dlat)                     ! twice the margins, in cells
+      lo = 0.0_dp
+      if (dsm%interp == interp_nearest) lo = -0.5_dp
+      edge = v0 + gv >= lo .and. v1 - gv <= dsm%nrows - 1 - lo
+      if (.not. dsm%global) edge = edge .and. u0 + 2.0_dp * wu >= lo .and. u1 - 2.0_dp * wu <= dsm%ncols - 1 - lo
+    end if
     if (dsm%interp == interp_nearest .and. .not. out .and. .not. dsm%global .and. hb < huge(1.0_dp)) then
       ci0 = ceiling(v0 - 0.5_dp); ci1 = floor(v1 + 0.5_dp)
       cj0 = ceiling(u0 - 0.5_dp); cj1 = floor(u1 + 0.5_dp)
@@ -163,7 +180,7 @@ contains
     type(dsm_ray_t), intent(inout) :: res
     type(rpt_t) :: pa, pb, pm, p_in, p_end, stack(exact_depth)
     real(dp) :: r_in, r_end, r_far, hs, lat, lon, h, dh, hlow, hb, r, g, dr, hc, rsplit, rm
-    logical :: found, out, done
+    logical :: found, out, done, edge
     integer :: code, nst, nseg, it, cell
     res%nsteps = 0
     ! ---- 1. the search interval
@@ -287,7 +304,7 @@ contains
     pb = p_end
     nst = 0
     do nseg = 1, exact_maxseg
-      call segment_bounds(dsm, s, l, pa, pb, hlow, hb, out, cell, rsplit)
+      call segment_bounds(dsm, s, l, pa, pb, hlow, hb, out, cell, rsplit, edge)
       rsplit = 0.0_dp
       if (pa%r == r_in) then
         call dsm_height(dsm, pa%lat, pa%lon, hs, code)
@@ -310,6 +327,20 @@ contains
         call next_segment(pa, pb, stack, nst)
         if (nst < 0) exit
         cycle
+      end if
+      if (edge) then
+        ! a segment along the edge, out of the grid only by the box's rounding margins: its points
+        ! may classify either way, and a depth-first search would visit every refine_tol of it (a
+        ! ray along the last row of a grid ran into exact_maxseg: STEP_LIMIT after 45 ms, found by
+        ! a review). It holds a point outside when its end does; when the end is inside, the
+        ! segment counts as inside: an excursion < ~1e-12 rad beyond the edge is not an event
+        ! (docs/shin-park-notes.md, "Exact mode"). So it is bisected only toward an outside end.
+        call dsm_height(dsm, pb%lat, pb%lon, hs, code)
+        if (code /= pt_outside) then
+          call next_segment(pa, pb, stack, nst)
+          if (nst < 0) exit
+          cycle
+        end if
       end if
       if (nst >= exact_depth) exit
       call eval_pt(dsm, s, l, 0.5_dp * (pa%r + pb%r), pm)

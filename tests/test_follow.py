@@ -317,3 +317,43 @@ def test_cli_run_on_a_dsm(tmp_path, capsys):
     assert list(table["status"]) == [0, 0]
     assert main(["run", str(f), str(rays), "--method", "stepping", "--out", str(tmp_path / "o2")]) == 2
     assert "method (for a GeodeticDSM) must be one of" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("interp", ["bilinear", "nearest"])
+def test_rays_onto_the_grid_edge(interp):
+    """An oblique scan (9 deg from the East) whose edge pixels reach the ground exactly on the
+    DSM's edge, and whose first and last lines run along its first and last rows, over a 40 x 40
+    grid with one 20 m building (a review's case): every ray is a HIT or LEFT_DSM (38 were MISS
+    and 11 STEP_LIMIT after 200,000 segments: shin-park-notes, "Exact mode"), each in a few
+    hundred conversions at most. A LEFT_DSM event lies between the ground and H_max, not inside
+    the grid by more than 1e-6 cells; the rays aimed at the bilinear grid's west edge (lines
+    1-38) leave it at their ground point, on the edge."""
+    from planet_intersect.synthetic_dsm import metre_steps, oblique_pushbroom
+
+    n = 40
+    lat0, lon0 = 36.6, -84.3
+    dlat, dlon = metre_steps(lat0)
+    lat_first = lat0 + (n - 1) * dlat
+    h = np.zeros((n, n))
+    h[15:25, 15:25] = 20.0
+    scene = dict(heights=h, lat_first=lat_first, lon_first=lon0, dlat=-dlat, dlon=dlon)
+    dsm = GeodeticDSM.from_array(h, lat_first, lon0, -dlat, dlon, interpolation=interp)
+    s, l = oblique_pushbroom(scene, zenith=9.0, azimuth=90.0, margin=0)
+    S, L = np.repeat(s, n, axis=0), l.reshape(-1, 3)
+    fol = pi.intersect(dsm, S, L, method="following", threads=1)
+    assert set(np.unique(fol.status)) <= {DSMStatus.HIT, DSMStatus.LEFT_DSM}
+    res = pi.intersect(dsm, S, L, method="exact", threads=1)
+    assert set(np.unique(res.status)) <= {DSMStatus.HIT, DSMStatus.LEFT_DSM}, np.unique(res.status)
+    assert res.nsteps.max() < 500, res.nsteps.max()
+    left = res.status == DSMStatus.LEFT_DSM
+    u = (res.event_lon - lon0) / dlon
+    v = (lat_first - res.event_lat) / dlat
+    half = 0.0 if interp == "bilinear" else 0.5
+    inside_by = np.minimum.reduce([u + half, (n - 1 + half) - u, v + half, (n - 1 + half) - v])
+    assert np.all(inside_by[left] <= 1e-6), inside_by[left].max()
+    assert np.all((res.event_height[left] > -1e-6) & (res.event_height[left] < 20.0 + 1e-6))
+    if interp == "bilinear":
+        west = np.arange(1, n - 1) * n                     # pixel 0 of lines 1..38
+        assert np.all(left[west])
+        assert np.all(np.abs(res.event_height[west]) < 1e-6) and np.all(np.abs(u[west]) < 1e-6), \
+            (np.abs(res.event_height[west]).max(), np.abs(u[west]).max())
