@@ -65,6 +65,12 @@ module pi_footprint
   !> longitude half-width, far above the rounding of the bounds.
   real(dp), parameter :: margin = 1.0e-7_dp
 
+  !> A cell whose direction from the sub-spacecraft point has a horizontal part
+  !> rho <= rho_nadir cos(beta) (the angle from the nadir below 1e-13 rad: within a
+  !> few hundred roundings of 0) is at the sub-spacecraft point: its position
+  !> angle and azimuth are NaN [note 5].
+  real(dp), parameter :: rho_nadir = 1.0e-13_dp
+
   !> Relative tightening of both thresholds (the horizon's rtop/|R| and the cone's
   !> zeta) for the cells taken without a test (scan_spectrum).
   real(dp), parameter :: in_slack = 1.0e-9_dp
@@ -273,7 +279,9 @@ contains
     ! local east and north at the sub-spacecraft point, both scaled by cos(beta)
     ! (their common factor cancels in atan2): notes' position angle, corrected (note 5)
     east = [-rhat(2), rhat(1), 0.0_dp]
-    north = [-rhat(3)*rhat(1), -rhat(3)*rhat(2), 1.0_dp - rhat(3)*rhat(3)]
+    ! (its z component x^2 + y^2, not 1 - z^2: equal for a unit rhat, but 1 - z^2 cancels near a
+    ! pole: 2.3e-4 deg of position angle at 89.999999 deg, found by a review)
+    north = [-rhat(3)*rhat(1), -rhat(3)*rhat(2), rhat(1)*rhat(1) + rhat(2)*rhat(2)]
     pole = hypot(rhat(1), rhat(2))
     ! every selected cell lies within theta of the sub-spacecraft point (module
     ! header): below 30 deg and away from the poles the zenith angle is psi + gamma [note 16]
@@ -412,7 +420,7 @@ contains
     call angles_aos(nb, w(:, 1), w(:, 2), w(:, 3), snc, w(:, 10))         ! notes: cos e = s_C . d_hat
     call angles_north(nb, w(:, 4), w(:, 5), w(:, 12))                    ! position angle (note 5)
     ! the angles written out
-    call store_angles(nb, w(:, 8), w(:, 9), w(:, 10), w(:, 11), w(:, 12), w(:, 6), w(:, 7), &
+    call store_angles(nb, w(:, 8), w(:, 9), w(:, 10), w(:, 11), w(:, 12), w(:, 6), w(:, 7), rho_nadir * pole, &
                       pole > 1.0e-12_dp, track, ascale, g, s3, s4, s5, s6, s7, s8, s9)
   end subroutine row_pairs
 
@@ -492,12 +500,15 @@ contains
 
   !> The angle outputs of one row, times ascale: zenith angles (a1, a2), emission
   !> (a3), nadir angle (a4), position angle from its 0..pi magnitude a5 and the sign
-  !> of the east component x (NaN where rho = 0 or over a pole: `polar` false),
-  !> azimuth (track bearing - PA; over a pole from the frame coordinates g) and
-  !> elevation psi - pi/2. Both [0, 2 pi) wraps without branches.
-  subroutine store_angles(nb, a1, a2, a3, a4, a5, x, rho, polar, track, ascale, g, s3, s4, s5, s6, s7, s8, s9)
+  !> of the east component x (NaN where rho <= rho_min, the cell within rounding of
+  !> the sub-spacecraft point, or over a pole: `polar` false), azimuth (track
+  !> bearing - PA; over a pole from the frame coordinates g; NaN where rho <=
+  !> rho_min: straight down) and elevation psi - pi/2. Both [0, 2 pi) wraps without branches.
+  subroutine store_angles(nb, a1, a2, a3, a4, a5, x, rho, rho_min, polar, track, ascale, g, s3, s4, s5, s6, s7, &
+                          s8, s9)
     integer, intent(in) :: nb
-    real(dp), intent(in) :: a1(nb), a2(nb), a3(nb), a4(nb), a5(nb), x(nb), rho(nb), track, ascale, g(3, nb)
+    real(dp), intent(in) :: a1(nb), a2(nb), a3(nb), a4(nb), a5(nb), x(nb), rho(nb), rho_min, track, ascale, &
+                            g(3, nb)
     logical, intent(in) :: polar
     real(dp), intent(inout) :: s3(nb), s4(nb), s5(nb), s6(nb), s7(nb), s8(nb), s9(nb)
     real(dp) :: pa, az, nan
@@ -523,9 +534,9 @@ contains
       end do
       nan = nan_dp
       do b = 1, nb
-        if (.not. rho(b) > 0.0_dp) then                    ! the cell at the sub-spacecraft point
-          s7(b) = nan
-          s8(b) = wrap_2pi(atan2(g(3, b), g(2, b))) * ascale
+        if (.not. rho(b) > rho_min) then                   ! the cell at the sub-spacecraft point: both
+          s7(b) = nan                                      ! directions are rounding noise (a review found
+          s8(b) = nan                                      ! PA 0 or 180 deg, azimuths 12-345 deg)
         end if
       end do
     else

@@ -466,7 +466,8 @@ def test_bad_input_raises_clear_errors(sphere):
     R = _xyz(0, 0, 3800)
     with pytest.raises(ValueError, match=r"R\[0\] has NaN"):
         pi.footprint(sphere, [np.nan, 0, 0], [0, 0, 1])
-    with pytest.raises(ValueError, match="not above the highest cell"):
+    with pytest.raises(ValueError, match=r"R\[0\] .* is not above the surface: the DEM radius at its "
+                                         r"sub-spacecraft point \(0 N, 0 E\) is 3390"):
         pi.footprint(sphere, _xyz(0, 0, 3000), [0, 0, 1])
     with pytest.raises(ValueError, match="zeta"):
         pi.footprint(sphere, R, [0, 0, 1], zeta=1.5)
@@ -523,3 +524,133 @@ def test_keplerian_states_conserve_energy_and_momentum():
     eps = 0.5 * np.sum(v * v, axis=1) - F.MARS_GM / np.linalg.norm(R, axis=1)
     assert np.ptp(eps) / abs(eps.mean()) < 1e-12
     assert math.isclose(eps.mean(), -F.MARS_GM / (3784.0 + 3847.0), rel_tol=1e-12)
+
+
+# ------------------------------------------------------------- faults found by a review (2026-12-02)
+def test_position_angle_near_a_pole(sphere):
+    """Spacecraft 1e-6 deg from the north pole: the position angle against the great-circle
+    bearing written from colatitudes (cos(lat) = sin(colatitude), no cancellation). North's z
+    component was 1 - z^2, which cancels here: 2.3e-4 deg off (grs-notes note 5)."""
+    for colat_deg in (1e-3, 1e-6, 1e-8):
+        c = math.radians(colat_deg)
+        lon0 = math.radians(37.0)
+        R = 3790.0 * np.array([math.sin(c) * math.cos(lon0), math.sin(c) * math.sin(lon0), math.cos(c)])
+        fp = pi.footprint(sphere, R, [1.0, 0.0, 0.0], zeta=0.99)
+        lat2 = np.radians(sphere.lat[fp.cell])
+        c2 = np.radians(90.0 - sphere.lat[fp.cell])                 # the cells' colatitudes, exact in degrees
+        dl = np.radians(sphere.lon[fp.cell]) - lon0
+        ref = np.degrees(np.arctan2(np.sin(dl) * np.sin(c2),
+                                    math.sin(c) * np.cos(c2) - math.cos(c) * np.sin(c2) * np.cos(dl))) % 360.0
+        assert np.all(lat2 > 0) and len(fp) > 100
+        for pa in (fp.position_angle, F.position_angle(R, sphere.u[fp.cell])):
+            err = np.abs((pa - ref + 180.0) % 360.0 - 180.0)
+            assert err.max() < 1e-8, (colat_deg, err.max())
+
+
+def test_cell_at_the_sub_spacecraft_point(sphere):
+    """A cell straight below the spacecraft: position angle and azimuth NaN (both directions are
+    rounding noise there: the review saw PA 0 or 180 deg and azimuths 12-345 deg); every other
+    cell finite."""
+    for k in (40 * 720 + 100, 200 * 720 + 555, 350 * 720 + 3):
+        R = 3790.0 * sphere.u[k]
+        for v in ([0.0, 0.0, 1.0], [1.0, 2.0, 0.5], [-3.0, 0.2, 1.0]):
+            v = np.array(v) - np.dot(v, sphere.u[k]) * sphere.u[k]
+            fp = pi.footprint(sphere, R, v, zeta=0.999)
+            at = fp.cell == k
+            assert at.sum() == 1
+            assert np.isnan(fp.position_angle[at]).all() and np.isnan(fp.azimuth[at]).all()
+            assert np.isfinite(fp.position_angle[~at]).all() and np.isfinite(fp.azimuth[~at]).all()
+            assert np.isnan(F.position_angle(R, sphere.u[k]))[0]
+            assert fp.elevation[at][0] == pytest.approx(-90.0, abs=1e-9)
+
+
+def test_spacecraft_inside_a_mesa_and_above_lowland():
+    """A 30 km mesa filling one 1-degree cell: a spacecraft 10 km inside it is refused, naming R
+    and the surface under it (it used to get a footprint: the check was the highest cell mean,
+    anywhere); one 20 km above lowland on the far side is refused by the cell search's own
+    limit, and the message says so (grs-notes note 17)."""
+    radii = np.full((720, 1440), 3390.0)
+    radii[400:404, 800:804] += 30.0                     # cell (10-11 N, 200-201 E) at 4 ppd
+    cells = pi.CellTable(pi.DEM.from_array(radii), 1.0)
+    inside = _xyz(10.5, 200.5, 3410.0)
+    with pytest.raises(ValueError, match=r"R\[0\] .*\(\|R\| = 3410\) is not above the surface: the DEM radius at "
+                                         r"its sub-spacecraft point \(10.5 N, 200.5 E\) is 3420"):
+        pi.footprint(cells, inside, [0, 0, 1.0])
+    with pytest.raises(ValueError, match=r"not above the surface"):
+        pi.footprint(cells, inside, [0, 0, 1.0], occlusion=True)
+    low = _xyz(-10.5, 20.5, 3410.0)
+    with pytest.raises(ValueError, match=r"above the surface at its sub-spacecraft point but not above the highest "
+                                         r"cell centre \(3420, cell \d+ at 10.5 N, 200.5 E\)"):
+        pi.footprint(cells, low, [0, 0, 1.0])
+    fp = pi.footprint(cells, _xyz(-10.5, 20.5, 3421.0), [0, 0, 1.0])       # above every cell centre: fine
+    assert len(fp) > 0
+    with pytest.raises(ValueError, match=r"R\[1\] .* too far from the centre"):
+        pi.footprint(cells, [_xyz(0, 0, 3800.0), [1e155, 0, 0]], [0, 0, 1.0])
+
+
+def test_cell_mean_sees_a_narrow_mesa():
+    """0.9-degree cells on a 16 ppd DEM (not a whole number of pixels): the cell's radius is the
+    mean of the bilinear surface over the cell, sampled at least once per pixel; a 10 km mesa two
+    pixels wide (0.125 deg) at the cell's centre raises it by about its share of the area
+    (4 x 4 samples missed it: 0 km)."""
+    n = 180 * 16
+    radii = np.full((n, 2 * n), 3390.0)
+    # cell 0.9 deg: row i = 111 holds latitudes 9.9..10.8; its centre 10.35 N, 180.45 E
+    r0, c0 = int((10.35 + 90) * 16), int(180.45 * 16)
+    radii[r0 - 1:r0 + 1, c0 - 1:c0 + 1] += 10.0
+    cells = pi.CellTable(pi.DEM.from_array(radii), 0.9)
+    k = cells.index(10.35, 180.45)
+    area_share = (0.125 / 0.9) ** 2                   # the mesa's pixel box over the cell's
+    rise = float(cells.radius[k]) - 3390.0
+    # the bilinear surface ramps over one pixel around the 2 x 2 plateau: between the plateau's
+    # share (1/4 of the box of centres) and the box's share
+    assert 10.0 * area_share / 4 < rise < 10.0 * area_share * 2.5, rise
+
+
+def test_cell_index_refuses_bad_coordinates(sphere):
+    assert sphere.index(90.0, 359.99) == 359 * 720 + 719
+    assert sphere.index(-90.0, -0.1) == 719
+    for lat, lon, what in ((np.nan, 0.0, "lat"), (0.0, np.inf, "lon"), (95.0, 0.0, "outside"),
+                           ([0.0, -1000.0], 0.0, "outside")):
+        with pytest.raises(ValueError, match=what):
+            sphere.index(lat, lon)
+
+
+def test_velocity_magnitude_does_not_matter(sphere):
+    """Only v's direction is used: 1e-200 and 1e200 give the frame of 1, bit for bit."""
+    R = _xyz(30.0, 40.0, 3790.0)
+    v1 = np.array([0.3, -0.2, 1.0])
+    v1 = v1 - np.dot(v1, R) / np.dot(R, R) * R
+    ref = pi.footprint(sphere, R, v1, zeta=0.99)
+    for s in (2.0 ** -660, 2.0 ** 650, 1e-200, 1e200):
+        exact = s in (2.0 ** -660, 2.0 ** 650)           # powers of two scale v exactly: bit for bit
+        same = np.testing.assert_array_equal if exact else (
+            lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-13, atol=1e-10))
+        fp = pi.footprint(sphere, R, s * v1, zeta=0.99)
+        same(fp.gsh, ref.gsh)
+        same(fp.azimuth, ref.azimuth)
+        same(F.spacecraft_frame(R, s * v1), F.spacecraft_frame(R, v1))
+        same(F.frame_angles(R, s * v1)[2], F.frame_angles(R, v1)[2])
+        same(F.orbit_frame(R, s * v1)[0], F.orbit_frame(R, v1)[0])
+
+
+def test_helpers_refuse_bad_arguments(sphere):
+    cases = [
+        (lambda: F.visible_cap_area(-100.0, 3390.0), "altitude"),
+        (lambda: F.visible_cap_area(400.0, -1.0), "radius"),
+        (lambda: F.detic_latitude(45.0, 1.5), "f must be"),
+        (lambda: F.detic_latitude(45.0, -1.0), "f must be"),
+        (lambda: F.detic_latitude(95.0, 0.005), "lat_deg"),
+        (lambda: F.keplerian_states([0.0], 3700.0, np.inf), "apoapsis_radius"),
+        (lambda: F.keplerian_states([0.0], 3700.0, 3800.0, GM=-1.0), "GM"),
+        (lambda: F.position_angle([0.0, 0.0, 0.0], [1.0, 0.0, 0.0]), "R"),
+        (lambda: F.orbit_frame([[3790.0, 0, 0]] * 2, [[0, 1.0, 0]] * 3), "R and v"),
+        (lambda: F.airmass(45.0, H=1e-320), "overflows"),
+        (lambda: F.airmass([1.0, 2.0, 3.0], R=[3390.0, 3391.0]), "z_deg and R"),
+        (lambda: F.airmass(True), "z_deg"),
+        (lambda: pi.footprint(sphere, np.array([3790.0 + 1j, 0, 0]), [0, 0, 1.0]), "complex"),
+    ]
+    for call, what in cases:
+        with pytest.raises(ValueError, match=what):
+            call()
+    assert F.visible_cap_area(0.0, 3390.0) == 0.0

@@ -77,4 +77,38 @@ def test_footprint_cli_errors(small, tmp_path):
     inside = tmp_path / "inside.csv"
     np.savetxt(inside, [[3000.0, 0, 0, 0, 1, 0]], delimiter=",")
     r = run_cli("footprint", "--states", inside, "--dem", hdr, "--out", tmp_path / "o")
-    assert r.returncode == 2 and "not above the highest cell" in r.stderr
+    assert r.returncode == 2 and "is not above the surface" in r.stderr
+
+
+def test_footprint_cli_states_file_faults(small, tmp_path):
+    """A damaged first data line is an error naming the bad token (it was dropped as a "header",
+    shifting every spectrum number by one); a file with only a header and --chunk < 1 are errors."""
+    d, hdr, states, R, v = small
+    rows = np.hstack([R, v])[:3]
+    damaged = tmp_path / "damaged.csv"
+    lines = [",".join(f"{x:.8f}" for x in row) for row in rows]
+    lines[0] = lines[0].replace(",", "S,", 1)
+    damaged.write_text("\n".join(lines) + "\n")
+    header_only = tmp_path / "header.csv"
+    header_only.write_text("x,y,z,vx,vy,vz\n")
+    ragged = tmp_path / "ragged.csv"
+    ragged.write_text("x,y,z,vx,vy,vz\n" + "\n".join(lines[1:]) + "\n1,2,3\n")
+    cases = [
+        (("--states", damaged), "data line 1: cannot read"),
+        (("--states", header_only), "only a header line"),
+        (("--states", ragged), "data line 3 has 3 columns"),
+        (("--states", states, "--chunk", "0"), "--chunk must be a positive"),
+        (("--states", tmp_path), "is a directory"),
+    ]
+    for args, message in cases:
+        r = run_cli("footprint", *args, "--dem", hdr, "--out", tmp_path / "o")
+        assert r.returncode == 2, (args, r.stderr)
+        assert message in r.stderr and r.stderr.count("\n") == 1, (args, r.stderr)
+    # a header line, then good rows: all of them are read (the header is not data)
+    good = tmp_path / "good.csv"
+    good.write_text("x,y,z,vx,vy,vz\n" + "\n".join(",".join(f"{x:.8f}" for x in row) for row in rows) + "\n")
+    r = run_cli("footprint", "--states", good, "--dem", hdr, "--cell-deg", "1", "--zeta", "0.9", "--out",
+                tmp_path / "g")
+    assert r.returncode == 0, r.stderr
+    table = np.genfromtxt(tmp_path / "g" / "run-001" / "footprint.csv", delimiter=",", names=True)
+    assert set(table["spectrum"].astype(int)) == {0, 1, 2}

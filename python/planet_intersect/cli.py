@@ -349,22 +349,47 @@ def _fetch_mola(args) -> int:
 
 
 # --- footprint (Mars Odyssey GRS notes, issue 13) ------------------------------------------------
+#: largest image `simulate --oblique` makes (its rays are held whole: 48 bytes per pixel)
+_SIM_MAX_PIXELS = 100_000_000
+
+
 def _read_states_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """State vectors from CSV: x,y,z,vx,vy,vz or time,x,y,z,vx,vy,vz per line (an optional header line)."""
+    if path.is_dir():
+        raise CLIError(f"states file {path}: is a directory")
     if not path.is_file():
         raise CLIError(f"states file {path}: no such file")
     with open(path, encoding="utf-8", errors="replace") as fh:
         lines = [ln for ln in fh if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
         raise CLIError(f"states file {path}: no state vectors")
-    try:
-        float(lines[0].replace(",", " ").split()[0])
-    except ValueError:
-        lines = lines[1:]                                 # a header line
-    try:
-        data = np.loadtxt([ln.replace(",", " ") for ln in lines], ndmin=2)
-    except ValueError as exc:
-        raise CLIError(f"states file {path}: {exc}") from None
+
+    def number(tok: str) -> bool:
+        try:
+            float(tok)
+            return True
+        except ValueError:
+            return False
+
+    # a header line has no number in it; a first line with some numbers is data (a damaged
+    # first row was once dropped as a "header", shifting every spectrum number by one)
+    if not any(number(tok) for tok in lines[0].replace(",", " ").split()):
+        lines = lines[1:]
+    if not lines:
+        raise CLIError(f"states file {path}: no state vectors (only a header line)")
+    rows = []
+    for i, ln in enumerate(lines):
+        toks = ln.replace(",", " ").split()
+        bad = [tok for tok in toks if not number(tok)]
+        if bad:
+            raise CLIError(f"states file {path}: data line {i + 1}: cannot read {bad[0]!r} as a number")
+        rows.append(toks)
+    widths = {len(r) for r in rows}
+    if len(widths) != 1:
+        i = next(i for i, r in enumerate(rows) if len(r) != len(rows[0]))
+        raise CLIError(f"states file {path}: data line {i + 1} has {len(rows[i])} columns, the first has "
+                       f"{len(rows[0])}")
+    data = np.array(rows, dtype=np.float64)
     if data.shape[1] not in (6, 7):
         raise CLIError(f"states file {path}: expected 6 columns (x y z vx vy vz) or 7 (time x y z vx vy vz), "
                        f"got {data.shape[1]}")
@@ -417,7 +442,9 @@ def _footprint(args) -> int:
     dem, dem_source = _example_dem(args)
     cells = CellTable(dem, args.cell_deg)
     n = len(R)
-    chunk = max(1, int(args.chunk))
+    chunk = int(args.chunk)
+    if chunk < 1:
+        raise CLIError(f"--chunk must be a positive number of spectra, got {args.chunk}")
     bar = Progress(n, "spectra", min_total=chunk + 1)
     parts = []
     t0 = time.perf_counter()
@@ -567,8 +594,16 @@ def _sensor_from_args(args, dsm, scene):
                                                 lon_first=dsm.lon_first, dlat=dsm.dlat, dlon=dsm.dlon,
                                                 a=dsm.a, f=dsm.f)
     margin = args.margin if args.margin is not None else (grid["heights"].shape[0] // 10 if scene else 0)
-    if args.step <= 0:
+    if not args.step > 0:
         raise CLIError(f"--step must be positive, got {args.step}")
+    if margin < 0:
+        raise CLIError(f"--margin must be >= 0 cells, got {margin}")
+    nr, nc = grid["heights"].shape
+    npix = len(np.arange(margin, nr - margin, args.step)) * len(np.arange(margin, nc - margin, args.step)) \
+        if max(nr, nc) / args.step <= 1e6 else float("inf")
+    if npix > _SIM_MAX_PIXELS:
+        raise CLIError(f"--step {args.step:g} makes an image of {npix:.3g} pixels over the {nr} x {nc} DSM "
+                       f"(at most {_SIM_MAX_PIXELS:,}; use a larger --step)")
     return Pushbroom(*oblique_pushbroom(grid, zenith=zen, azimuth=az, altitude=args.altitude,
                                         margin=margin, step=args.step))
 
@@ -809,6 +844,10 @@ def main(argv=None) -> int:
         return args.func(args)
     except (CLIError, ValueError, TypeError, OSError) as exc:
         print(f"planet-intersect: error: {exc}", file=sys.stderr)
+        return 2
+    except MemoryError as exc:
+        print(f"planet-intersect: error: out of memory ({exc or 'an array too large for this machine'}): "
+              "ask for less (a larger --step, fewer rays, smaller chunks)", file=sys.stderr)
         return 2
     except ImportError as exc:
         print(f"planet-intersect: error: a Python package is missing ({exc}); "

@@ -66,6 +66,8 @@ FOOTPRINT_STATUS = {0: "ok", 1: "spacecraft position NaN/Inf or zero", 2: "space
 # input checks
 # ----------------------------------------------------------------------------------------
 def _vectors(v, name: str) -> np.ndarray:
+    if np.iscomplexobj(v):
+        raise ValueError(f"{name}: complex values are not positions or directions")
     try:
         a = np.asarray(v, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -82,11 +84,32 @@ def _vectors(v, name: str) -> np.ndarray:
     return np.ascontiguousarray(a)
 
 
+def _pow2_scaled(a: np.ndarray) -> np.ndarray:
+    """Rows of a (N, 3) scaled by powers of two so that their largest |component| is in [0.5, 1):
+    exact (the same directions, bit for bit, after normalising), and safe from the overflow and
+    underflow of |a|^2 for any finite magnitude (a review found v of 1e-200 or 1e200 refused)."""
+    _, e = np.frexp(np.max(np.abs(a), axis=1))
+    return np.ldexp(a, -e[:, None])
+
+
+def _angles(x, name: str, limit: float) -> np.ndarray:
+    """x (degrees) as a float64 array, finite and within [-limit, limit], or ValueError naming it."""
+    if np.iscomplexobj(x) or isinstance(x, (bool, np.bool_)):
+        raise ValueError(f"{name}: expected real numbers (degrees), got {x!r}")
+    try:
+        a = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected real numbers (degrees), got {x!r}") from None
+    if a.dtype == bool or not (np.isfinite(a).all() and (np.abs(a) <= limit).all()):
+        raise ValueError(f"{name}: angles must be finite and within [-{limit:g}, {limit:g}] degrees")
+    return a
+
+
 def _nonzero(a: np.ndarray, name: str) -> np.ndarray:
-    n = np.linalg.norm(a, axis=1)
-    if (n == 0).any():
-        raise ValueError(f"{name}[{int(np.argmax(n == 0))}] has zero length")
-    return n
+    zero = np.max(np.abs(a), axis=1) == 0                # (not |a| == 0: |a|^2 underflows for 1e-200)
+    if zero.any():
+        raise ValueError(f"{name}[{int(np.argmax(zero))}] has zero length")
+    return np.linalg.norm(a, axis=1)
 
 
 def _real(x, name: str, lo=None, hi=None, lo_open=False) -> float:
@@ -115,8 +138,11 @@ def detic_latitude(lat_deg, f: float) -> np.ndarray:
     (docs/grs-notes.md, note 1), computed as atan2(sin b, (1 - e^2) cos b) so
     that the poles are exact.
     """
+    f = _real(f, "f", lo=0.0, hi=1.0)
+    if f >= 1.0:
+        raise ValueError(f"f must be in [0, 1), got {f}")
     e2 = f * (2.0 - f)
-    b = np.radians(np.asarray(lat_deg, dtype=np.float64))
+    b = np.radians(_angles(lat_deg, "lat_deg", 90.0))
     return np.degrees(np.arctan2(np.sin(b), (1.0 - e2) * np.cos(b)))
 
 
@@ -192,7 +218,8 @@ class CellTable:
       angular frame, ``r(b, l) = r0 + g_b (b - b0) + g_l (l - l0)``, through the
       DEM samples in the cell (when ``cell_deg * ppd`` is an integer >= 2: the
       pixel centres inside it), else through the DEM's bilinear surface sampled
-      at 4 x 4 points spread evenly over the cell. The sample grid is symmetric
+      at n x n points spread evenly over the cell, n = ceil(cell_deg * ppd) + 1
+      clipped to 4..32 (at least one sample per DEM pixel up to 31 pixels per cell). The sample grid is symmetric
       about the centre in (b, l), so r0 is the samples' mean and the gradient
       is free of the curvature terms that tilt a Cartesian plane fit over a
       trapezoidal cell (measured on the Mars spheroid, 0.5 deg cells: 1.2e-6 rad
@@ -249,9 +276,26 @@ class CellTable:
         return f"CellTable({self.nrow} x {self.ncol} cells of {self.cell_deg} deg, {self.dem!r})"
 
     def index(self, lat, lon) -> np.ndarray:
-        """Index of the cell holding each (areocentric lat, east lon) in degrees."""
-        lat = np.asarray(lat, dtype=np.float64)
-        lon = np.asarray(lon, dtype=np.float64) % 360.0
+        """Index of the cell holding each (areocentric lat, east lon) in degrees.
+
+        Raises ValueError for a latitude outside [-90, 90] or a NaN/Inf coordinate
+        (longitudes wrap); lat = 90 is in the northernmost row."""
+        try:
+            lat = np.asarray(lat, dtype=np.float64)
+            lon = np.asarray(lon, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"lat, lon: not arrays of numbers ({exc})") from None
+        for name, a in (("lat", lat), ("lon", lon)):
+            bad = ~np.isfinite(a)
+            if bad.any():
+                k = int(np.argmax(bad.reshape(-1)))
+                raise ValueError(f"{name}: {bad.sum()} value(s) NaN or Inf, first at flat index {k}")
+        bad = np.abs(lat) > 90.0
+        if bad.any():
+            k = int(np.argmax(bad.reshape(-1)))
+            raise ValueError(f"lat: {bad.sum()} value(s) outside [-90, 90] degrees, first "
+                             f"{lat.reshape(-1)[k]} at flat index {k}")
+        lon = lon % 360.0
         i = np.clip(np.floor((lat + 90.0) / self.cell_deg).astype(np.int64), 0, self.nrow - 1)
         j = np.clip(np.floor(lon / self.cell_deg).astype(np.int64), 0, self.ncol - 1)
         return i * self.ncol + j
@@ -288,7 +332,10 @@ def _cell_samples(dem: DEM, nrow: int):
             raw = np.asarray(dem.radii[i0 * k:i1 * k], dtype=np.float64)
             yield slice(i0, i1), raw.reshape(i1 - i0, k, ncol, k), offs, offs
     else:
-        ns = 4
+        # at least one sample per DEM pixel across the cell (a review found a 10 km mesa two
+        # pixels wide missing from the mean of a 0.9 deg cell of a 16 ppd DEM with 4 x 4), at
+        # most 32 x 32 per cell (the table's build time) [note 3]
+        ns = int(min(32, max(4, math.ceil(kk) + 1)))
         frac = (np.arange(ns) + 0.5) / ns - 0.5
         offs = np.radians(frac * cd)
         rows_per = max(1, (2 << 20) // (ns * ns * ncol))
@@ -430,8 +477,10 @@ def frame_angles(R, v):
     n = max(len(R), len(v))
     R = np.broadcast_to(R, (n, 3))
     v = np.broadcast_to(v, (n, 3))
-    rn = _nonzero(R, "R")
-    rh = R / rn[:, None]
+    _nonzero(R, "R")
+    # directions only: scaled by powers of two (exact), so that no magnitude overflows
+    Rs, v = _pow2_scaled(R), _pow2_scaled(v)
+    rh = Rs / np.linalg.norm(Rs, axis=1)[:, None]
     lam = np.arctan2(rh[:, 1], rh[:, 0])
     beta = np.arctan2(rh[:, 2], np.hypot(rh[:, 0], rh[:, 1]))
     vperp = v - np.sum(v * rh, axis=1)[:, None] * rh
@@ -486,8 +535,8 @@ def spacecraft_frame(R, v, method: str = "state") -> np.ndarray:
     single = np.ndim(R) == 1 and np.ndim(v) == 1
     if method == "state":
         lam, beta, alpha = frame_angles(R, v)          # validates; the angles are not used
-        Rv = np.broadcast_to(_vectors(R, "R"), (len(lam), 3))
-        vv = np.broadcast_to(_vectors(v, "v"), (len(lam), 3))
+        Rv = _pow2_scaled(np.broadcast_to(_vectors(R, "R"), (len(lam), 3)))
+        vv = _pow2_scaled(np.broadcast_to(_vectors(v, "v"), (len(lam), 3)))
         x = Rv / np.linalg.norm(Rv, axis=1, keepdims=True)
         y = vv - np.sum(vv * x, axis=1)[:, None] * x
         y /= np.linalg.norm(y, axis=1, keepdims=True)
@@ -520,9 +569,14 @@ def orbit_frame(R, v):
     """
     R = _vectors(R, "R")
     v = _vectors(v, "v")
+    if len(v) != len(R) and len(v) != 1 and len(R) != 1:
+        raise ValueError(f"R and v: {len(R)} positions do not broadcast against {len(v)} velocities")
     n = max(len(R), len(v))
-    R = np.broadcast_to(R, (n, 3))
-    v = np.broadcast_to(v, (n, 3))
+    _nonzero(R, "R")
+    _nonzero(v, "v")
+    # directions only (the frame and the angles): scaled by powers of two, exact
+    R = np.broadcast_to(_pow2_scaled(R), (n, 3))
+    v = np.broadcast_to(_pow2_scaled(v), (n, 3))
     h = np.cross(R, v)
     hn = np.linalg.norm(h, axis=1)
     if (hn == 0).any():
@@ -551,20 +605,28 @@ def position_angle(R, r_c) -> np.ndarray:
     Clockwise from north (toward the north pole along the sub-spacecraft
     meridian) through east: ``atan2(u . E, u . N)`` with u = r_c/|r_c|,
     E = z x R_hat and N = z - (z . R_hat) R_hat (both |.| = cos beta, which
-    cancels) [note 5]. NaN over a pole and at the sub-spacecraft point itself.
-    Broadcasts R (3,)/(N, 3) against r_c (3,)/(N, 3).
+    cancels) [note 5]. NaN over a pole and at the sub-spacecraft point itself
+    (within 1e-13 rad, the kernel's rule). Broadcasts R (3,)/(N, 3) against
+    r_c (3,)/(N, 3).
     """
-    R = np.atleast_2d(np.asarray(R, dtype=np.float64))
-    r_c = np.atleast_2d(np.asarray(r_c, dtype=np.float64))
-    rh = R / np.linalg.norm(R, axis=-1, keepdims=True)
-    u = r_c / np.linalg.norm(r_c, axis=-1, keepdims=True)
+    R = _vectors(R, "R")
+    r_c = _vectors(r_c, "r_c")
+    if len(R) != len(r_c) and 1 not in (len(R), len(r_c)):
+        raise ValueError(f"R and r_c: {len(R)} positions do not broadcast against {len(r_c)} points")
+    _nonzero(R, "R")
+    _nonzero(r_c, "r_c")
+    R, r_c = _pow2_scaled(R), _pow2_scaled(r_c)                # exact: directions only
+    rh = R / np.linalg.norm(R, axis=1)[:, None]
+    u = r_c / np.linalg.norm(r_c, axis=1)[:, None]
     E = np.stack([-rh[:, 1], rh[:, 0], np.zeros(len(rh))], axis=1)
-    N = np.stack([-rh[:, 2] * rh[:, 0], -rh[:, 2] * rh[:, 1], 1 - rh[:, 2] ** 2], axis=1)
+    # N's z component x^2 + y^2 (= 1 - z^2 for a unit R_hat without its cancellation near a pole)
+    N = np.stack([-rh[:, 2] * rh[:, 0], -rh[:, 2] * rh[:, 1], rh[:, 0] ** 2 + rh[:, 1] ** 2], axis=1)
     x = np.sum(u * E, axis=1)
     y = np.sum(u * N, axis=1)
     pa = np.degrees(np.arctan2(x, y)) % 360.0
     pa = np.where(pa >= 360.0, 0.0, pa)
-    bad = (np.hypot(rh[:, 0], rh[:, 1]) <= 1e-12) | ((x == 0) & (y == 0))
+    cb = np.hypot(rh[:, 0], rh[:, 1])
+    bad = (cb <= 1e-12) | ~(np.hypot(x, y) > 1e-13 * cb)
     return np.where(bad, np.nan, pa)
 
 
@@ -707,17 +769,27 @@ def airmass(z_deg, H: float | None = None, R: float | np.ndarray | None = None, 
     """
     if model not in _AIRMASS_MODELS:
         raise ValueError(f"model must be one of {', '.join(_AIRMASS_MODELS)}, got {model!r}")
-    z = np.asarray(z_deg, dtype=np.float64)
-    if np.isnan(z).any() or (np.abs(z[np.isfinite(z)]) > 180).any() or (z < 0).any() or np.isinf(z).any():
+    z = _angles(z_deg, "z_deg", 180.0)
+    if (z < 0).any():
         raise ValueError("z_deg: zenith angles must be finite and within [0, 180] degrees")
     if model == "chapman":
         H = scale_height() if H is None else _real(H, "H", lo=0.0, lo_open=True)
         if R is None:
             R = MARS_MEAN_RADIUS_KM
+        if np.iscomplexobj(R):
+            raise ValueError("R: radii must be real")
         R = np.asarray(R, dtype=np.float64)
         if not (np.isfinite(R).all() and (R > 0).all()):
             raise ValueError("R: radii must be positive and finite")
-        return chapman(R / H, z)
+        with np.errstate(over="ignore"):
+            x = R / H
+        if not np.isfinite(x).all():
+            raise ValueError(f"R / H overflows (H = {H:g}): the scale height is too small for these radii")
+        try:
+            x, z = np.broadcast_arrays(x, z)
+        except ValueError:
+            raise ValueError(f"z_deg and R: shapes {np.shape(z)} and {np.shape(R)} do not broadcast") from None
+        return chapman(x, z)
     with np.errstate(divide="ignore", invalid="ignore"):
         sec = 1.0 / np.cos(np.radians(z))
     sec = np.where(z == 90.0, np.inf, sec)
@@ -765,6 +837,8 @@ class FootprintResult:
     azimuth, elevation :
         Direction of the cell in the spacecraft frame: azimuth from +y (forward)
         toward +z (left), [0, 360); elevation above the y-z plane (negative below).
+        The azimuth and the position angle are NaN for a cell at the
+        sub-spacecraft point (within 1e-13 rad: straight down) [note 5].
     visible : bool
         False when ``occlusion=True`` found the terrain blocking the line to the
         spacecraft (such pairs stay in the arrays; the footprint proper is
@@ -907,7 +981,9 @@ def _state_frames(R: np.ndarray, v: np.ndarray) -> np.ndarray:
     """``spacecraft_frame(R, v, method="state")`` for checked (N, 3) R and v: the same
     arithmetic (bit for bit) and the same error for a radial velocity, without
     :func:`frame_angles`' angles, which footprint() does not use (a third of its
-    per-call time for one spectrum per call)."""
+    per-call time for one spectrum per call). Both are scaled by powers of two first
+    (exact: the same frame for any magnitude)."""
+    R, v = _pow2_scaled(R), _pow2_scaled(v)
     x = R / np.linalg.norm(R, axis=1, keepdims=True)
     y = v - np.sum(v * x, axis=1)[:, None] * x
     vp = np.linalg.norm(y, axis=1)
@@ -959,6 +1035,36 @@ def _run_kernel(cells: CellTable, R: np.ndarray, frames: np.ndarray, zeta: np.nd
     return idx, d, gsh, scal, buffers
 
 
+#: largest |component| of a spacecraft position: |R - r_C|^2 stays finite (a review found
+#: |R| ~ 1e155 returned with distance inf, solid angle 0 and emission up to 120 deg)
+_R_COMPONENT_MAX = 1e150
+
+
+def _check_above_surface(cells: CellTable, R: np.ndarray) -> None:
+    """ValueError naming R where a position is too far to compute with or not above the DEM's
+    surface at its own sub-spacecraft point (checked only for |R| <= rmax, which bounds every
+    radius of the DEM)."""
+    big = np.max(np.abs(R), axis=1) > _R_COMPONENT_MAX
+    if big.any():
+        k = int(np.argmax(big))
+        raise ValueError(f"R[{k}] = {R[k]} is too far from the centre (a component above {_R_COMPONENT_MAX:g} "
+                         f"DEM units): |R - r_C|^2 would overflow")
+    rn = np.linalg.norm(R, axis=1)
+    near = np.flatnonzero(rn <= cells.dem.rmax)
+    if near.size == 0:
+        return
+    Rn = R[near]
+    lat = np.degrees(np.arctan2(Rn[:, 2], np.hypot(Rn[:, 0], Rn[:, 1])))
+    lon = np.degrees(np.arctan2(Rn[:, 1], Rn[:, 0])) % 360.0
+    rs = cells.dem.radius(lat, lon)
+    low = np.flatnonzero(~(rn[near] > rs))
+    if low.size:
+        i = int(low[0])
+        k = int(near[i])
+        raise ValueError(f"R[{k}] = {R[k]} (|R| = {rn[k]:.6g}) is not above the surface: the DEM radius at its "
+                         f"sub-spacecraft point ({lat[i]:.6g} N, {lon[i]:.6g} E) is {rs[i]:.6g}")
+
+
 def _raise_status(stat, status, R, cells):
     if stat != 0:
         raise RuntimeError(f"footprint kernel: {FOOTPRINT_STATUS.get(int(stat), stat)} (status {stat})")
@@ -966,8 +1072,12 @@ def _raise_status(stat, status, R, cells):
     if bad.size:
         k = int(bad[0])
         if status[k] == 2:
-            raise ValueError(f"R[{k}] = {R[k]} (|R| = {np.linalg.norm(R[k]):.6g}) is not above the highest cell "
-                             f"centre ({cells.radius.max():.6g}): the spacecraft must be above the surface")
+            # footprint() has checked the surface under R: this is the kernel's own limit [note 17]
+            top = int(np.argmax(cells.radius))
+            raise ValueError(f"R[{k}] = {R[k]} (|R| = {np.linalg.norm(R[k]):.6g}) is above the surface at its "
+                             f"sub-spacecraft point but not above the highest cell centre ({cells.radius[top]:.6g}, "
+                             f"cell {top} at {cells.lat[top]:.6g} N, {cells.lon[top]:.6g} E): the footprint's cell "
+                             f"search needs the spacecraft above every cell centre (docs/grs-notes.md, note 17)")
         raise ValueError(f"R[{k}] = {R[k]}: {FOOTPRINT_STATUS.get(int(status[k]), status[k])}")
 
 
@@ -1027,7 +1137,9 @@ def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta:
     ------
     ValueError
         Bad shapes, NaN/Inf, zeta outside [-1, 1] or together with
-        flux_fraction, a radial velocity, a spacecraft not above the surface.
+        flux_fraction, a radial velocity, a spacecraft not above the DEM's
+        surface at its sub-spacecraft point, or not above the highest cell
+        centre (the cell search's own limit, docs/grs-notes.md note 17).
     """
     if not isinstance(cells, CellTable):
         raise TypeError(f"cells must be a planet_intersect.CellTable, got {type(cells).__name__}")
@@ -1035,6 +1147,7 @@ def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta:
         raise TypeError(f"out must be a FootprintResult of an earlier call, got {type(out).__name__}")
     R = _vectors(R, "R")
     _nonzero(R, "R")
+    _check_above_surface(cells, R)
     area = _real(area, "area", lo=0.0, lo_open=True)
     if zeta is not None and flux_fraction is not None:
         raise ValueError("give zeta or flux_fraction, not both")
@@ -1152,8 +1265,16 @@ def occluded_not(cells: CellTable, R: np.ndarray, fp: FootprintResult, tol: floa
 # ----------------------------------------------------------------------------------------
 def visible_cap_area(altitude, radius: float) -> np.ndarray:
     """Area of the cap of a sphere of ``radius`` visible from ``altitude`` above it:
-    ``2 pi r^2 h/(r + h)`` (the horizon is at cos theta = r/(r + h))."""
-    h = np.asarray(altitude, dtype=np.float64)
+    ``2 pi r^2 h/(r + h)`` (the horizon is at cos theta = r/(r + h)); altitude >= 0."""
+    radius = _real(radius, "radius", lo=0.0, lo_open=True)
+    if np.iscomplexobj(altitude):
+        raise ValueError("altitude: expected real numbers")
+    try:
+        h = np.asarray(altitude, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"altitude: expected numbers, got {altitude!r}") from None
+    if not (np.isfinite(h).all() and (h >= 0).all()):
+        raise ValueError("altitude: must be finite and >= 0 (a point on or above the sphere)")
     return 2.0 * np.pi * radius ** 2 * h / (radius + h)
 
 
@@ -1168,10 +1289,21 @@ def keplerian_states(t, periapsis_radius: float, apoapsis_radius: float, inclina
     ``v_fixed = Rz(-w t) (v_inertial - w z x R_inertial)``. Kepler's equation
     is solved by Newton's method (at most 30 steps).
     """
-    t = np.atleast_1d(np.asarray(t, dtype=np.float64))
-    rp, ra = float(periapsis_radius), float(apoapsis_radius)
-    if not (0 < rp <= ra):
+    try:
+        t = np.atleast_1d(np.asarray(t, dtype=np.float64))
+    except (TypeError, ValueError):
+        raise ValueError(f"t: expected times in seconds, got {t!r}") from None
+    if not np.isfinite(t).all():
+        raise ValueError("t: times must be finite")
+    rp = _real(periapsis_radius, "periapsis_radius", lo=0.0, lo_open=True)
+    ra = _real(apoapsis_radius, "apoapsis_radius", lo=0.0, lo_open=True)
+    if not rp <= ra:
         raise ValueError(f"periapsis_radius and apoapsis_radius: need 0 < rp <= ra, got {rp}, {ra}")
+    GM = _real(GM, "GM", lo=0.0, lo_open=True)
+    rotation_rate = _real(rotation_rate, "rotation_rate")
+    for name, val in (("inclination_deg", inclination_deg), ("node_deg", node_deg), ("argp_deg", argp_deg),
+                      ("mean_anomaly0_deg", mean_anomaly0_deg)):
+        _real(val, name)
     a = 0.5 * (rp + ra)
     e = (ra - rp) / (ra + rp)
     n = math.sqrt(GM / a ** 3)
