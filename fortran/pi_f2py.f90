@@ -374,29 +374,33 @@ end subroutine core_dsm_codes
 !> Values, surface kinds and local incidence angles of n simulated pixels
 !> from their rays' hits (pi_simulate::sim_shade). DSM grid as
 !> core_dsm_height; gnd(ncols, nrows) bare-earth heights; ortho(nb, ocols,
-!> orows) on its grid (olat0, olon0, odlat, odlon, radians); lat, lon
-!> (radians), h, hsurf, hit (1 = hit), l(3, n) unit directions; walls 0
+!> orows) on its grid (olat0, olon0, odlat, odlon, radians); scal(ns, n) the
+!> rays' hits as core_dsm_trace returns them (rows 1-4: lat, lon in radians,
+!> h, H; passed whole so that its rows are not copied), hit (1 = hit), l(3, n)
+!> unit directions; walls 0
 !> interpolate / 1 ortho; shading 0 none / 1 Lambert; sunmode 0 (azimuth,
 !> elevation in radians in sun(1:2)) / 1 ECR unit vector. Outputs val(nb, n),
-!> kind(n) (-1 none, 0 ground, 1 roof, 2 wall), locinc(n) (radians).
+!> kind(n) (-1 none, 0 ground, 1 roof, 2 wall), locinc(n) (radians), noval(n)
+!> (1: a hit with no ortho value there).
 subroutine core_sim_shade(ncols, nrows, hgt, lat0, lon0, dlat, dlon, a, f, interp, gnd, nb, ocols, orows, &
-                          ortho, olat0, olon0, odlat, odlon, n, lat, lon, h, hsurf, hit, l, walls, shading, &
+                          ortho, olat0, olon0, odlat, odlon, ns, n, scal, hit, l, walls, shading, &
                           sunmode, sun, ambient, cos_wall, roof_min, cell_x, cell_y, fill, threads, val, kind, &
-                          locinc)
+                          locinc, noval)
   use pi_kinds, only: dp
   use pi_vector, only: pi
   use pi_dsm, only: dsm_t, dsm_attach
   use pi_simulate, only: ortho_t, sim_options_t, sim_shade
+  use pi_ieee, only: nan_dp
   implicit none
-  integer, intent(in) :: ncols, nrows, interp, nb, ocols, orows, n, walls, shading, sunmode, threads
+  integer, intent(in) :: ncols, nrows, interp, nb, ocols, orows, ns, n, walls, shading, sunmode, threads
   real(dp), intent(in), target :: hgt(ncols, nrows), ortho(nb, ocols, orows)
   real(dp), intent(in) :: gnd(ncols, nrows)
   real(dp), intent(in) :: lat0, lon0, dlat, dlon, a, f, olat0, olon0, odlat, odlon
-  real(dp), intent(in) :: lat(n), lon(n), h(n), hsurf(n), l(3, n), sun(3), ambient, cos_wall, roof_min
+  real(dp), intent(in) :: scal(ns, n), l(3, n), sun(3), ambient, cos_wall, roof_min
   real(dp), intent(in) :: cell_x, cell_y, fill
   integer, intent(in) :: hit(n)
   real(dp), intent(out) :: val(nb, n), locinc(n)
-  integer, intent(out) :: kind(n)
+  integer, intent(out) :: kind(n), noval(n)
   real(dp), target :: nopyr(1)
   integer, target :: nometa(3, 1)
   type(dsm_t) :: dsm
@@ -424,5 +428,12 @@ subroutine core_sim_shade(ncols, nrows, hgt, lat0, lon0, dlat, dlon, a, f, inter
   opt%cell_x = cell_x
   opt%cell_y = cell_y
   opt%fill = fill
-  call sim_shade(dsm, gnd, o, opt, n, lat, lon, h, hsurf, hit, l, threads, val, kind, locinc)
+  if (ns < 4) then                                   ! (the wrapper checks it; nothing to read otherwise)
+    val = fill
+    kind = -1
+    locinc = nan_dp
+    noval = 0
+    return
+  end if
+  call sim_shade(dsm, gnd, o, opt, ns, n, scal, hit, l, threads, val, kind, locinc, noval)
 end subroutine core_sim_shade

@@ -30,6 +30,12 @@ module pi_simulate
   !> surface kinds (DESIGN.md section 9)
   integer, parameter :: kind_none = -1, kind_ground = 0, kind_roof = 1, kind_wall = 2
 
+  !> Points within ortho_edge_tol pixels outside the ortho-image's rectangle of
+  !> pixel centres are taken on its edge: a hit on a grid shared with the DSM
+  !> lands on a border pixel's centre to rounding (~3e-9 pixels), and was a
+  !> value-less pixel (a review found 166 of 236 border pixels at fill).
+  real(dp), parameter :: ortho_edge_tol = 1.0e-6_dp
+
   !> An ortho-image attached to caller-owned values (no copy, no state).
   type :: ortho_t
     !> values(band, col, row); NaN = no data
@@ -51,7 +57,8 @@ module pi_simulate
 contains
 
   !> Bilinear value of the ortho-image at (lat, lon) (radians), every band:
-  !> NaN outside the rectangle of pixel centres or where a needed pixel is NaN.
+  !> NaN outside the rectangle of pixel centres (widened by ortho_edge_tol) or
+  !> where a needed pixel is NaN.
   pure subroutine ortho_sample(o, lat, lon, val)
     type(ortho_t), intent(in) :: o
     real(dp), intent(in) :: lat, lon
@@ -65,10 +72,13 @@ contains
       v = (dl + (o%lonc - o%lon0)) / o%dlon
     end if
     u = (lat - o%lat0) / o%dlat                     ! row
-    if (.not. (u >= 0.0_dp .and. u <= o%nrows - 1 .and. v >= 0.0_dp .and. v <= o%ncols - 1)) then
+    if (.not. (u >= -ortho_edge_tol .and. u <= o%nrows - 1 + ortho_edge_tol .and. v >= -ortho_edge_tol &
+               .and. v <= o%ncols - 1 + ortho_edge_tol)) then
       val = nan_dp
       return
     end if
+    u = min(max(u, 0.0_dp), real(o%nrows - 1, dp))
+    v = min(max(v, 0.0_dp), real(o%ncols - 1, dp))
     i = min(int(u), max(o%nrows - 2, 0))
     j = min(int(v), max(o%ncols - 2, 0))
     fu = u - i
@@ -152,48 +162,53 @@ contains
   !> rays' hits (OpenMP over pixels; results identical for any thread count).
   !>
   !> Inputs: dsm, gnd (bare-earth heights on the DSM grid, NaN = unknown), o
-  !> (ortho-image), opt; lat, lon (radians), h (geodetic height of the hit),
-  !> hsurf (DSM height H at the hit; above h on a "nearest" cell side), hit
+  !> (ortho-image), opt; hits(ns, n), ns >= 4, the rays' hits as
+  !> pi_dsm_exact's dsm_trace_packed returns them in scal (rows: lat, lon in
+  !> radians, h the geodetic height of the hit, H the DSM height there, above
+  !> h on a "nearest" cell side; read in place: no copy of the rows), hit
   !> (1 where the ray hit), l(3, n) ray directions (ECR, any non-zero length);
-!> threads (0: all).
+  !> threads (0: all).
   !> Outputs: val(nb, n) the pixel values (opt%fill where not hit or NaN),
   !> kind(n) (kind_* codes), locinc(n) the angle between -l and the surface
-  !> normal used (radians; NaN where not hit).
-  subroutine sim_shade(dsm, gnd, o, opt, n, lat, lon, h, hsurf, hit, l, threads, val, kind, locinc)
+  !> normal used (radians; NaN where not hit), noval(n) 1 where the ray hit
+  !> but the ortho-image had no value there (val = opt%fill), else 0.
+  subroutine sim_shade(dsm, gnd, o, opt, ns, n, hits, hit, l, threads, val, kind, locinc, noval)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: gnd(:, :)
     type(ortho_t), intent(in) :: o
     type(sim_options_t), intent(in) :: opt
-    integer, intent(in) :: n, hit(n), threads
-    real(dp), intent(in) :: lat(n), lon(n), h(n), hsurf(n), l(3, n)
+    integer, intent(in) :: ns, n, hit(n), threads
+    real(dp), intent(in) :: hits(ns, n), l(3, n)
     real(dp), intent(out) :: val(o%nb, n), locinc(n)
-    integer, intent(out) :: kind(n)
+    integer, intent(out) :: kind(n), noval(n)
     integer :: k, nth
     nth = 1
     !$ nth = threads
     !$ if (nth <= 0) nth = omp_get_max_threads()
     !$omp parallel do num_threads(nth) schedule(static, 256) default(shared) private(k)
     do k = 1, n
+      noval(k) = 0
       if (hit(k) /= 1) then
         val(:, k) = opt%fill
         kind(k) = kind_none
         locinc(k) = nan_dp
       else
-        call shade_one(dsm, gnd, o, opt, lat(k), lon(k), h(k), hsurf(k), l(:, k), val(:, k), kind(k), locinc(k))
+        call shade_one(dsm, gnd, o, opt, hits(1, k), hits(2, k), hits(3, k), hits(4, k), l(:, k), val(:, k), &
+                       kind(k), locinc(k), noval(k))
       end if
     end do
     !$omp end parallel do
   end subroutine sim_shade
 
   !> One pixel of sim_shade.
-  pure subroutine shade_one(dsm, gnd, o, opt, lat, lon, h, hsurf, l, val, kind, locinc)
+  pure subroutine shade_one(dsm, gnd, o, opt, lat, lon, h, hsurf, l, val, kind, locinc, noval)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: gnd(:, :)
     type(ortho_t), intent(in) :: o
     type(sim_options_t), intent(in) :: opt
     real(dp), intent(in) :: lat, lon, h, hsurf, l(3)
     real(dp), intent(out) :: val(o%nb), locinc
-    integer, intent(out) :: kind
+    integer, intent(out) :: kind, noval
     real(dp) :: sl, cl, so, co, e(3), nv(3), up(3), w, my, mx, u, v, gx, gy, g2, gn, horiz(3), nrm(3)
     real(dp) :: cosi, ground, sun(3), fac, az, el, lu(3)
     logical :: wall
@@ -249,6 +264,8 @@ contains
       fac = opt%ambient + (1.0_dp - opt%ambient) * max(0.0_dp, sum(nrm * sun))
       val = val * fac
     end if
+    noval = 0
+    if (.not. all(ieee_is_finite(val))) noval = 1          ! no ortho value at the hit: said, not hidden
     where (.not. ieee_is_finite(val)) val = opt%fill
   end subroutine shade_one
 

@@ -95,6 +95,14 @@ class GeodeticDSM:
         self = object.__new__(cls)
         if isinstance(interpolation, str) is False or interpolation not in _INTERP:
             raise DSMError(f"interpolation must be 'bilinear' or 'nearest', got {interpolation!r}")
+        if np.ma.isMaskedArray(heights):
+            # masked cells are no data (np.array would drop the mask: a review saw a masked -9999
+            # become a 9,999 m pit)
+            if heights.dtype.kind not in "fiub":
+                raise DSMError(f"heights: must be real numbers, got dtype {heights.dtype}")
+            heights = heights.astype(np.float64).filled(np.nan)
+        if np.iscomplexobj(heights):
+            raise DSMError("heights: must be real numbers, got complex values")
         try:
             h = np.array(heights, dtype=np.float64, copy=True)
         except (TypeError, ValueError) as exc:
@@ -314,7 +322,7 @@ class GeodeticDSM:
                 raise DSMError(f"DSM file {path}: band {band} does not exist (the file has {src.count})")
             nd = nodata if nodata is not None else src.nodata
             warped = None
-            if src.crs.is_geographic:
+            if src.crs.is_geographic and _geographic_datum(src.crs, src.bounds, path, "DSM", a, f) == "as-is":
                 t = src.transform
                 if t.b != 0 or t.d != 0:
                     raise DSMError(f"DSM file {path}: rotated or sheared pixel grid is not supported")
@@ -352,6 +360,44 @@ class GeodeticDSM:
         dsm.resampling = warped
         dsm.crs = str(crs)
         return dsm
+
+
+def _geographic_datum(crs, bounds, path, what: str, a=None, f=None) -> str:
+    """How to read a raster in the geographic CRS ``crs``: "as-is" (its latitudes and longitudes
+    are the target's), or "warp" (an Earth datum other than WGS-84 that moves the raster's centre by
+    more than 1 cm: warped to EPSG:4326 like a projected raster; a review saw a Tokyo-datum raster
+    taken as WGS-84, 359 m south and 292 m east of its place). ``a``, ``f``: the target ellipsoid
+    (the DSM's; None for an ortho-image, whose datum must be the DSM's): a raster on another body
+    must be on it, else DSMError naming the file and its CRS. The heights are not changed:
+    they stay above the geoid (``geoid=``) or the ellipsoid they were given on."""
+    import pyproj
+
+    c = pyproj.CRS.from_user_input(crs.to_wkt())
+    ell = c.ellipsoid
+    ca = ell.semi_major_metre
+    cf = 0.0 if not ell.inverse_flattening else 1.0 / ell.inverse_flattening
+    if abs(ca - WGS84_A) > 0.01 * WGS84_A:                 # another body
+        if a is not None and not (math.isclose(ca, a, rel_tol=1e-9) and math.isclose(cf, f, rel_tol=1e-9,
+                                                                                      abs_tol=1e-12)):
+            raise DSMError(f"{what} file {path}: its CRS ({c.name}) is on the ellipsoid a = {ca:.10g}, "
+                           f"f = {cf:.10g}, not a = {a:.10g}, f = {f:.10g}: pass that body's a= and f=")
+        return "as-is"
+    if a is not None and not (math.isclose(a, WGS84_A, rel_tol=1e-12) and math.isclose(f, WGS84_F, rel_tol=1e-9)):
+        if math.isclose(ca, a, rel_tol=1e-9) and math.isclose(cf, f, rel_tol=1e-9, abs_tol=1e-12):
+            return "as-is"                                 # the caller's own ellipsoid, the CRS's
+        raise DSMError(f"{what} file {path}: its CRS ({c.name}, a = {ca:.10g}) is an Earth datum, but "
+                       f"a = {a:.10g}, f = {f:.10g} was asked for")
+    lon_c = 0.5 * (bounds.left + bounds.right)
+    lat_c = min(89.0, max(-89.0, 0.5 * (bounds.bottom + bounds.top)))
+    try:
+        tr = pyproj.Transformer.from_crs(c, pyproj.CRS("EPSG:4326"), always_xy=True)
+        lon2, lat2 = tr.transform(lon_c, lat_c)
+    except Exception as exc:  # noqa: BLE001
+        raise DSMError(f"{what} file {path}: no transformation from its CRS ({c.name}) to WGS-84 ({exc})") from None
+    if not (math.isfinite(lon2) and math.isfinite(lat2)):
+        raise DSMError(f"{what} file {path}: no transformation from its CRS ({c.name}) to WGS-84")
+    shift = math.hypot((lat2 - lat_c) * 111_320.0, (lon2 - lon_c) * 111_320.0 * math.cos(math.radians(lat_c)))
+    return "warp" if shift > 0.01 else "as-is"
 
 
 @dataclass

@@ -497,6 +497,15 @@ class Sensor:
         return {"line": kc, "pixel": pix, "across": across, "along": along}
 
 
+def _nonzero_directions(l: np.ndarray) -> None:
+    """ValueError naming the first line of sight l[line, pixel] of zero length (found here,
+    not when a simulation reaches its block)."""
+    zero = np.max(np.abs(l), axis=-1) == 0
+    if zero.any():
+        k, m = (int(x) for x in np.argwhere(zero)[0])
+        raise ValueError(f"l[{k}, {m}] has zero length: a line of sight needs a direction")
+
+
 class Pushbroom(Sensor):
     """A pushbroom (line) camera given by the user's geometry, as it is.
 
@@ -513,6 +522,7 @@ class Pushbroom(Sensor):
     def __init__(self, s, l):
         self.s = _array(s, "s", (3,), 2)
         self._l = _array(l, "l", (3,), 3)
+        _nonzero_directions(self._l)
         if self._l.shape[0] != self.s.shape[0]:
             raise ValueError(f"s has {self.s.shape[0]} lines but l has {self._l.shape[0]}")
         if self.s.shape[0] == 0 or self._l.shape[1] == 0:
@@ -825,6 +835,7 @@ class FrameCamera(Sensor):
         self.position = _array(np.reshape(position, (1, -1)) if np.ndim(position) == 1 else position,
                                "position", (3,), 2)[0]
         self._l = _array(l, "l", (3,), 3)
+        _nonzero_directions(self._l)
         if self._l.shape[0] == 0 or self._l.shape[1] == 0:
             raise ValueError(f"an image needs at least one row and one column, got l of shape {self._l.shape}")
         self.shape = (self._l.shape[0], self._l.shape[1])

@@ -101,6 +101,12 @@ class OrthoImage:
         nodata : float, optional
             Value marking missing pixels (NaN always does).
         """
+        if np.ma.isMaskedArray(values):
+            # masked elements are no data (np.asarray would drop the mask: a review saw masked -9999
+            # placeholders become brightness); real numbers only
+            if values.dtype.kind not in "fiub":
+                raise TypeError(f"values: must be real numbers, got dtype {values.dtype}")
+            values = values.astype(np.float64).filled(np.nan)
         try:
             arr = np.asarray(values)
         except (TypeError, ValueError) as exc:
@@ -203,7 +209,9 @@ class OrthoImage:
             nd = nodata if nodata is not None else src.nodata
             data = src.read()                                   # (bands, rows, cols)
             dtype = data.dtype
-            if src.crs.is_geographic:
+            from .dsm import _geographic_datum
+
+            if src.crs.is_geographic and _geographic_datum(src.crs, src.bounds, path, "ortho-image") == "as-is":
                 t = src.transform
                 if t.b != 0 or t.d != 0:
                     raise ValueError(f"ortho-image file {path}: rotated or sheared pixel grid is not supported")
@@ -251,6 +259,8 @@ class SimResult:
     surface: np.ndarray  #: int8: 0 ground, 1 roof, 2 wall, -1 no hit
     status: np.ndarray  #: int8 DSM ray status (DSMStatus)
     p: np.ndarray  #: hit point, ECR
+    #: True where the ray hit and the ortho-image had a value there (a hit without one gets ``fill``)
+    ortho_value: np.ndarray | None = None
     occlusion: np.ndarray | None = None  #: ortho grid: ground in the footprint hidden from the sensor
     footprint: np.ndarray | None = None  #: ortho grid: inside the image's ground footprint
     meta: dict = field(default_factory=dict)  #: run parameters, counts and timings
@@ -265,6 +275,9 @@ class SimResult:
         names = {v: k for k, v in vars(DSMStatus).items() if k.isupper()}
         for code in np.unique(self.status):
             out[f"status {names.get(int(code), int(code))}"] = int(np.count_nonzero(self.status == code))
+        if self.ortho_value is not None:
+            out["hits without an ortho value"] = int(np.count_nonzero(self.valid)) - int(
+                np.count_nonzero(self.ortho_value))
         if self.occlusion is not None:
             out["occluded ortho pixels"] = int(np.count_nonzero(self.occlusion))
             out["footprint ortho pixels"] = int(np.count_nonzero(self.footprint))
@@ -286,7 +299,7 @@ class SimResult:
                 data[f.name] = (("line", "pixel", "xyz"), np.asarray(v))
             elif f.name == "image" and v.ndim == 3:
                 data[f.name] = (("line", "pixel", "band"), np.asarray(v))
-            elif f.name == "valid":
+            elif f.name in ("valid", "ortho_value"):
                 data[f.name] = (("line", "pixel"), np.asarray(v, dtype=np.int8))
             else:
                 data[f.name] = (("line", "pixel"), np.asarray(v))
@@ -384,8 +397,12 @@ def _opening_ground(dsm: GeodeticDSM, window_m: float) -> np.ndarray:
     h = np.asarray(dsm.heights, dtype=np.float64)
     lat_mid = dsm.lat_first + 0.5 * (dsm.nrows - 1) * dsm.dlat
     my, mx = _metres_per_degree(lat_mid, 0.0, dsm.a, dsm.f)
-    wy = max(3, int(math.ceil(window_m / (abs(dsm.dlat) * my))) | 1)
-    wx = max(3, int(math.ceil(window_m / (dsm.dlon * mx))) | 1)
+    # a window wider than twice the grid opens exactly as one of 2 n + 1 (every window then holds the
+    # whole grid): clipped, so that a huge ground_window costs nothing (it took minutes, then a
+    # MemoryError, found by a review)
+    wy = min(max(3, int(min(math.ceil(window_m / (abs(dsm.dlat) * my)), 4 * dsm.nrows + 3)) | 1),
+             2 * dsm.nrows + 1)
+    wx = min(max(3, int(min(math.ceil(window_m / (dsm.dlon * mx)), 4 * dsm.ncols + 3)) | 1), 2 * dsm.ncols + 1)
     filled = np.where(np.isfinite(h), h, np.nanmax(h) if np.isfinite(h).any() else 0.0)
     return ndimage.grey_opening(filled, size=(wy, wx), mode="nearest")
 
@@ -517,6 +534,10 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
     ambient = _number(ambient, "ambient")
     if not 0 <= ambient <= 1:
         raise ValueError(f"ambient must be in [0, 1], got {ambient}")
+    if shading != "lambert" and (sun is not None or ambient != 0):
+        # (they were ignored without a word: a review)
+        raise ValueError(f"sun and ambient apply only with shading='lambert' (got shading={shading!r}, "
+                         f"sun={sun!r}, ambient={ambient!r})")
     fill = float(fill) if isinstance(fill, (int, float, np.floating, np.integer)) else _number(fill, "fill")
     wall_slope = _number(wall_slope, "wall_slope")
     if not 0 < wall_slope < 90:
@@ -528,10 +549,25 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
     if not isinstance(block_lines, (int, np.integer)) or isinstance(block_lines, bool) or block_lines < 1:
         raise ValueError(f"block_lines must be a positive integer, got {block_lines!r}")
     check_threads(threads, 1)
+    orb = getattr(sensor, "orbit", None)
+    if isinstance(orb, dict) and "a" in orb and "f" in orb:
+        if not (math.isclose(orb["a"], dsm.a, rel_tol=1e-12) and math.isclose(orb["f"], dsm.f, rel_tol=1e-12,
+                                                                               abs_tol=1e-15)):
+            raise ValueError(f"sensor: its orbit was built on the ellipsoid a = {orb['a']:.10g}, f = {orb['f']:.10g}, "
+                             f"the DSM's is a = {dsm.a:.10g}, f = {dsm.f:.10g} (pass a=, f= to from_orbit)")
     if ground is None:
         ground_grid = _opening_ground(dsm, ground_window)
+    elif isinstance(ground, GeodeticDSM):
+        # its own grid: sampled at the DSM's nodes (its heights array alone was used, whatever its
+        # grid or row order: a review saw a south-up copy of the same ground relabel 1,296 pixels)
+        if not (math.isclose(ground.a, dsm.a, rel_tol=1e-12) and math.isclose(ground.f, dsm.f, rel_tol=1e-12,
+                                                                               abs_tol=1e-15)):
+            raise ValueError(f"ground: its ellipsoid (a = {ground.a:.10g}, f = {ground.f:.10g}) differs from the "
+                             f"DSM's (a = {dsm.a:.10g}, f = {dsm.f:.10g})")
+        lat_g, lon_g = np.meshgrid(dsm.lats, dsm.lons, indexing="ij")
+        ground_grid = np.asarray(ground.height(lat_g, lon_g), dtype=np.float64)
     else:
-        g = ground.heights if isinstance(ground, GeodeticDSM) else ground
+        g = ground
         try:
             ground_grid = np.asarray(g, dtype=np.float64)
         except (TypeError, ValueError):
@@ -544,6 +580,25 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
         if out_dir.exists():
             raise FileExistsError(f"out={out_dir}: exists; choose a new directory (nothing is overwritten)")
         out_dir.mkdir(parents=True)
+    try:
+        return _simulate(dsm, ortho, sensor, method, walls, shading, sun_arr, ambient, fill, occlusion, ground_grid,
+                         wall_slope, roof_min, threads, block_lines, progress, out_dir)
+    except BaseException:
+        # a failed run leaves no half-filled maps that look like a result (the folder is this call's own)
+        if out_dir is not None:
+            import shutil
+
+            shutil.rmtree(out_dir, ignore_errors=True)
+        raise
+
+
+def _simulate(dsm, ortho, sensor, method, walls, shading, sun_arr, ambient, fill, occlusion, ground_grid, wall_slope,
+              roof_min, threads, block_lines, progress, out_dir) -> SimResult:
+    """simulate_image after its checks (out_dir: the new folder of the maps, or None)."""
+    from ._ext import core as _core
+    from .dsm import _trace_raw
+    from .geodetic import _wrap180
+    from .intersect import check_threads
 
     nl, npx = sensor.shape
     bands = ortho.bands
@@ -553,6 +608,7 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
     planes = {name: _alloc(out_dir, name, (nl, npx), np.float64, np.nan)
               for name in ("lat", "lon", "height", "distance", "incidence", "local_incidence")}
     surface = _alloc(out_dir, "surface", (nl, npx), np.int8, -1)
+    ortho_value = _alloc(out_dir, "ortho_value", (nl, npx), bool, False)
     status = _alloc(out_dir, "status", (nl, npx), np.int8, -1)
     pts = _alloc(out_dir, "p", (nl, npx, 3), np.float64, np.nan)
     # what the shading kernel (fortran/pi_simulate.f90) needs, made once
@@ -588,34 +644,50 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
         blk = slice(k0, k1)
         shape2 = (k1 - k0, npx)
         hit = (st == DSMStatus.HIT) | (st == DSMStatus.HIT_UNCONVERGED)   # [sim note 8]
+        hit2 = hit.reshape(shape2)
         status[blk] = st.reshape(shape2)
-        valid[blk] = hit.reshape(shape2)
-        miss = ~hit
-        lat = scal[0].copy()
-        lat[miss] = np.nan
-        planes["lat"][blk] = np.degrees(lat).reshape(shape2)
-        lon = np.degrees(scal[1])
-        lon[miss] = np.nan
-        planes["lon"][blk] = _wrap180(lon).reshape(shape2)
-        for name, row in (("height", 2), ("distance", 4)):
-            v = scal[row].copy()
-            v[miss] = np.nan
-            planes[name][blk] = v.reshape(shape2)
-        inc = np.degrees(scal[5])
-        inc[miss] = np.nan
-        planes["incidence"][blk] = inc.reshape(shape2)
-        pp = p.T.copy()
-        pp[miss] = np.nan
-        pts[blk] = pp.reshape(shape2 + (3,))
-        val, kind, locinc = _core.core_sim_shade(*grid[:7], grid[7], gnd, ov, *ortho._core_grid(), scal[0],
-                                                 scal[1], scal[2], scal[3], hit.astype(np.int32), l.T,
-                                                 threads=nthreads, **shade_args)
+        valid[blk] = hit2
+        miss2 = None if hit.all() else ~hit2
+        # the backplanes, written in one pass each from the trace's rows (scal is (10, n) in
+        # Fortran order: a row reshaped to the block is a strided view, p.T a contiguous one)
+        for name, row, deg in (("lat", 0, True), ("lon", 1, True), ("height", 2, False),
+                               ("distance", 4, False), ("incidence", 5, True)):
+            dst = planes[name][blk]
+            src = scal[row].reshape(shape2)
+            if deg:
+                np.degrees(src, out=dst)
+            else:
+                dst[...] = src
+            if miss2 is not None:
+                dst[miss2] = np.nan
+        lon = planes["lon"][blk]
+        wrap = (lon >= 180.0) | (lon < -180.0)              # atan2's +180 (NaN compares false)
+        if wrap.any():
+            lon[wrap] = _wrap180(lon[wrap])
+        dst = pts[blk]
+        dst[...] = p.T.reshape(shape2 + (3,))
+        if miss2 is not None:
+            dst[miss2] = np.nan
+        # scal (10, n) in Fortran order as the trace returned it: the kernel reads its rows in place
+        val, kind, locinc, noval = _core.core_sim_shade(*grid[:7], grid[7], gnd, ov, *ortho._core_grid(), scal,
+                                                        hit.astype(np.int32), l.T,
+                                                        threads=nthreads, **shade_args)
+        ortho_value[blk] = hit2 & (noval == 0).reshape(shape2)
         image[blk] = val.T.reshape(((k1 - k0), npx) + ishape[2:])
         surface[blk] = kind.reshape(shape2)
         planes["local_incidence"][blk] = np.degrees(locinc).reshape(shape2)
         bar.update(k1, k1 * npx)
     t_sim = time.perf_counter() - t0
-    sim = SimResult(image=image, valid=valid, surface=surface, status=status, p=pts, **planes)
+    sim = SimResult(image=image, valid=valid, surface=surface, status=status, p=pts, ortho_value=ortho_value,
+                    **planes)
+    n_noval = int(np.count_nonzero(np.asarray(valid))) - int(np.count_nonzero(np.asarray(ortho_value)))
+    sim.meta["hits_without_ortho_value"] = n_noval
+    if n_noval:
+        import warnings
+
+        warnings.warn(f"{n_noval} pixel(s) hit the DSM where the ortho-image has no value (outside it or over its "
+                      f"no-data): their image value is fill = {fill:g} (SimResult.ortho_value is False there)",
+                      stacklevel=3)
     sim.meta.update(method=method, walls=walls, shading=shading, nlines=nl, npixels=npx,
                     ortho_dtype=str(ortho.dtype), seconds_simulation=t_sim, seconds_rays=t_rays,
                     pixels_per_second=nl * npx / max(t_sim, 1e-12))
@@ -663,16 +735,22 @@ def _fill_polygon(pu, pv, nrows: int, ncols: int) -> np.ndarray:
     return np.cumsum(diff[:, :ncols], axis=1) > 0
 
 
-def _occlusion(dsm: GeodeticDSM, ortho: OrthoImage, sensor, sim: SimResult, threads):
+def _occlusion(dsm: GeodeticDSM, ortho: OrthoImage, sensor, sim: SimResult, threads, chunk: int = 1 << 18):
     """Ortho-grid masks: ``footprint`` (inside the polygon of the image border's
-    hits) and ``occlusion`` (footprint pixels whose surface point is hidden).
+    hits, and every ortho pixel an image pixel's hit lands on) and ``occlusion``
+    (footprint pixels whose surface point is hidden).
 
     [sim note 5] For each footprint pixel X (its centre at the DSM height) the
     sensor position is that of the image line whose hit lands nearest to X
     (nearest in the ortho grid); the exact ray from there to X is cast and X is
     hidden when the ray meets the surface more than 1 cm before X. For a
     pushbroom the true line differs by a fraction of a line, a direction
-    change of ~1e-7 rad at 700 km."""
+    change of ~1e-7 rad at 700 km.
+
+    Memory: the image's backplanes are read in blocks of lines and the rays
+    cast in chunks of ``chunk`` ortho pixels; what grows with the scene is
+    ~13 bytes per ortho pixel of the footprint's bounding box (the line of
+    each pixel and the nearest-seen-pixel indices) [sim note 9]."""
     from scipy import ndimage
 
     from .dsm import intersect_dsm
@@ -680,59 +758,72 @@ def _occlusion(dsm: GeodeticDSM, ortho: OrthoImage, sensor, sim: SimResult, thre
     nr, nc = ortho.shape
     occ = np.zeros((nr, nc), dtype=bool)
     foot = np.zeros((nr, nc), dtype=bool)
-    valid = np.asarray(sim.valid)
-    if not valid.any():
-        return occ, foot
-    lat, lon = np.asarray(sim.lat), np.asarray(sim.lon)
-    # the image border, in order, as a polygon in ortho (row, col) coordinates
-    nl, npx = valid.shape
+    valid_all = sim.valid
+    nl, npx = valid_all.shape
+    # the image border, in order, as a polygon in ortho (row, col) coordinates (only it is read here)
     border = ([(0, m) for m in range(npx)] + [(k, npx - 1) for k in range(1, nl)]
               + [(nl - 1, m) for m in range(npx - 2, -1, -1)] + [(k, 0) for k in range(nl - 2, 0, -1)])
     bk = np.array([b[0] for b in border])
     bm = np.array([b[1] for b in border])
-    keep = valid[bk, bm]
+    keep = np.asarray(valid_all[bk, bm])
     if keep.sum() < 3:
         return occ, foot
-    bu, bv = ortho.grid_coords(lat[bk, bm][keep], lon[bk, bm][keep])
+    bu, bv = ortho.grid_coords(np.asarray(sim.lat[bk, bm])[keep], np.asarray(sim.lon[bk, bm])[keep])
     u0, u1 = max(0, int(np.floor(bu.min()))), min(nr - 1, int(np.ceil(bu.max())))
     v0, v1 = max(0, int(np.floor(bv.min()))), min(nc - 1, int(np.ceil(bv.max())))
     if u1 < u0 or v1 < v0:
         return occ, foot
     inside = _fill_polygon(bu - u0, bv - v0, u1 - u0 + 1, v1 - v0 + 1)
-    foot[u0:u1 + 1, v0:v1 + 1] = inside
-    # which image line saw each ortho pixel: the hits binned to the nearest pixel
-    line_of = np.full((u1 - u0 + 1, v1 - v0 + 1), -1, dtype=np.int64)
-    ku, kv = ortho.grid_coords(lat[valid], lon[valid])
-    iu = np.rint(ku).astype(np.int64) - u0
-    iv = np.rint(kv).astype(np.int64) - v0
-    lines = np.nonzero(valid)[0]
-    okb = (iu >= 0) & (iu < line_of.shape[0]) & (iv >= 0) & (iv < line_of.shape[1])
-    line_of[iu[okb], iv[okb]] = lines[okb]
+    # which image line saw each ortho pixel: the hits binned to the nearest pixel, in blocks of lines
+    # (a later line overwrites an earlier one), and each line's focal point
+    line_of = np.full((u1 - u0 + 1, v1 - v0 + 1), -1, dtype=np.int32)
+    focal = np.empty((nl, 3))
+    block = max(1, chunk // max(npx, 1))
+    for k0 in range(0, nl, block):
+        k1 = min(nl, k0 + block)
+        focal[k0:k1] = sensor.rays(k0, k1)[0][::npx]
+        vb = np.asarray(valid_all[k0:k1])
+        if not vb.any():
+            continue
+        ku, kv = ortho.grid_coords(np.asarray(sim.lat[k0:k1])[vb], np.asarray(sim.lon[k0:k1])[vb])
+        iu = np.rint(ku).astype(np.int64) - u0
+        iv = np.rint(kv).astype(np.int64) - v0
+        lines = (np.nonzero(vb)[0] + k0).astype(np.int32)
+        okb = (iu >= 0) & (iu < line_of.shape[0]) & (iv >= 0) & (iv < line_of.shape[1])
+        line_of[iu[okb], iv[okb]] = lines[okb]
     seen = line_of >= 0
     if not seen.any():
+        foot[u0:u1 + 1, v0:v1 + 1] = inside
         return occ, foot
-    _, (ni, nj) = ndimage.distance_transform_edt(~seen, return_indices=True)
+    # an ortho pixel that an image pixel looks at is in the footprint (the polygon through the border
+    # pixels' hits decided the border row and column by rounding: a review)
+    inside |= seen
+    foot[u0:u1 + 1, v0:v1 + 1] = inside
+    ni, nj = ndimage.distance_transform_edt(~seen, return_distances=False, return_indices=True)
     nearest_line = line_of[ni, nj]
-    cu, cv = np.nonzero(inside)
-    olat = ortho.lat_first + (cu + u0) * ortho.dlat
-    olon = ortho.lon_first + (cv + v0) * ortho.dlon
-    hs = np.asarray(dsm.height(olat, olon), dtype=np.float64)
-    ok = np.isfinite(hs)
-    cu, cv, olat, olon, hs = cu[ok], cv[ok], olat[ok], olon[ok], hs[ok]
-    if cu.size == 0:
-        return occ, foot
-    x = np.asarray(geodetic_to_ecef(olat, olon, hs, dsm.a, dsm.f)).reshape(-1, 3)
-    kl = nearest_line[cu, cv]
-    uniq, inv = np.unique(kl, return_inverse=True)
-    focal = np.array([sensor.rays(int(k), int(k) + 1)[0][0] for k in uniq])
-    s = focal[inv]
-    d = x - s
-    dist = np.linalg.norm(d, axis=1)
+    del ni, nj, line_of
     import warnings
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        res = intersect_dsm(dsm, s, d, method="exact", threads=threads)
-    hidden = (res.status == DSMStatus.HIT) & (res.distance < dist - 0.01)
-    occ[cu[hidden] + u0, cv[hidden] + v0] = True
+    rows_per = max(1, chunk // inside.shape[1])
+    for r0 in range(0, inside.shape[0], rows_per):
+        cu, cv = np.nonzero(inside[r0:r0 + rows_per])
+        if cu.size == 0:
+            continue
+        cu += r0
+        olat = ortho.lat_first + (cu + u0) * ortho.dlat
+        olon = ortho.lon_first + (cv + v0) * ortho.dlon
+        hs = np.asarray(dsm.height(olat, olon), dtype=np.float64)
+        ok = np.isfinite(hs)
+        cu, cv, olat, olon, hs = cu[ok], cv[ok], olat[ok], olon[ok], hs[ok]
+        if cu.size == 0:
+            continue
+        x = np.asarray(geodetic_to_ecef(olat, olon, hs, dsm.a, dsm.f)).reshape(-1, 3)
+        s = focal[nearest_line[cu, cv]]
+        d = x - s
+        dist = np.linalg.norm(d, axis=1)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            res = intersect_dsm(dsm, s, d, method="exact", threads=threads)
+        hidden = (res.status == DSMStatus.HIT) & (res.distance < dist - 0.01)
+        occ[cu[hidden] + u0, cv[hidden] + v0] = True
     return occ, foot

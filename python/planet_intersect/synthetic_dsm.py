@@ -277,6 +277,10 @@ def paper_scene(size: int = 640, seed: int = 7, lat0: float = 36.52, lon0: float
                 buildings=buildings)
 
 
+#: most lines or pixels per line of an ObliqueScan (a tiny step asked for 4e10 and a traceback)
+_OBLIQUE_MAX = 1_000_000
+
+
 class ObliqueScan(Sensor):
     """A pushbroom over a scene grid whose every line views the ground at one
     zenith angle from one azimuth, its rays made a block of lines at a time (a
@@ -291,6 +295,12 @@ class ObliqueScan(Sensor):
             raise ValueError(f"zenith must be in [0, 80) degrees, got {zenith}")
         if not step > 0:
             raise ValueError(f"step must be positive, got {step}")
+        if not (isinstance(margin, (int, np.integer)) and not isinstance(margin, bool) and margin >= 0):
+            raise ValueError(f"margin must be a whole number of cells >= 0, got {margin!r}")
+        for what, n in (("lines", nr), ("pixels", nc)):
+            if (n - 2 * margin) / step > _OBLIQUE_MAX:
+                raise ValueError(f"step {step:g} makes {(n - 2 * margin) / step:.3g} {what} of a {nr} x {nc} grid "
+                                 f"(at most {_OBLIQUE_MAX:,} each)")
         if not altitude > 0:
             raise ValueError(f"altitude must be positive, got {altitude}")
         self.a, self.f = scene.get("a", WGS84_A), scene.get("f", WGS84_F)
