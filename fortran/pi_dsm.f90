@@ -24,7 +24,7 @@ module pi_dsm
   implicit none
   private
 
-  public :: dsm_t, dsm_attach, dsm_height, dsm_grid_uv, dsm_box_bound, dsm_cell_metres
+  public :: dsm_t, dsm_attach, dsm_height, dsm_grid_uv, dsm_box_bound, dsm_cell_metres, range_max
   public :: interp_bilinear, interp_nearest, pt_ok, pt_outside, pt_nodata
 
   !> interpolation codes
@@ -118,15 +118,17 @@ contains
     real(dp), intent(out) :: hs
     integer, intent(out) :: code
     integer :: i, j, i0, i1, j0, j1, ii, jj
-    real(dp) :: fu, fv, h00, h01, h10, h11, tu, tv, w
+    real(dp) :: fu, fv, h00, h01, h10, h11, tu, tv, w, eu, ev
     hs = ieee_nan()
     code = pt_outside
+    eu = edge_u(dsm)
+    ev = edge_v(dsm)
     if (dsm%interp == interp_bilinear) then
-      if (.not. (v >= 0.0_dp .and. v <= dsm%nrows - 1 .and. u >= 0.0_dp .and. u <= dsm%ncols - 1)) return
-      i = min(int(v), dsm%nrows - 2)
-      j = min(int(u), dsm%ncols - 2)
-      fv = v - i
-      fu = u - j
+      if (.not. (v >= -ev .and. v <= dsm%nrows - 1 + ev .and. u >= -eu .and. u <= dsm%ncols - 1 + eu)) return
+      i = min(int(max(v, 0.0_dp)), dsm%nrows - 2)
+      j = min(int(max(u, 0.0_dp)), dsm%ncols - 2)
+      fv = min(max(v - i, 0.0_dp), 1.0_dp)
+      fu = min(max(u - j, 0.0_dp), 1.0_dp)
       h00 = dsm%hgt(j + 1, i + 1)
       h01 = dsm%hgt(j + 2, i + 1)
       h10 = dsm%hgt(j + 1, i + 2)
@@ -141,7 +143,9 @@ contains
       if (dsm%global) then
         tu = modulo(tu, real(dsm%ncols, dp))
       end if
-      if (.not. (tv >= 0.0_dp .and. tv <= dsm%nrows .and. tu >= 0.0_dp .and. tu <= dsm%ncols)) return
+      if (.not. (tv >= -ev .and. tv <= dsm%nrows + ev .and. tu >= -eu .and. tu <= dsm%ncols + eu)) return
+      tv = min(max(tv, 0.0_dp), real(dsm%nrows, dp))
+      tu = min(max(tu, 0.0_dp), real(dsm%ncols, dp))
       i1 = min(int(tv), dsm%nrows - 1)
       i0 = i1
       if (real(i1, dp) == tv .and. i1 >= 1) i0 = i1 - 1          ! on a row boundary: both cells
@@ -185,14 +189,37 @@ contains
     real(dp), intent(out) :: hb
     logical, intent(out) :: out
     integer :: i0, i1, j0, j1, w
-    real(dp) :: e
+    real(dp) :: e, eu, ev, pw, a0, a1
     hb = huge(1.0_dp)
     out = .true.
     if (.not. (u1 >= u0 .and. v1 >= v0)) return
-    if (dsm%interp == interp_bilinear) then
-      out = v0 < 0.0_dp .or. v1 > dsm%nrows - 1 .or. u0 < 0.0_dp .or. u1 > dsm%ncols - 1
+    eu = edge_u(dsm)
+    ev = edge_v(dsm)
+    if (dsm%interp == interp_bilinear .and. dsm%global) then
+      ! a global bilinear grid comes with its first column repeated after the last (GeodeticDSM's
+      ! core grid): its nodes span one turn, u = 0 .. P, P = ncols - 1; the box wrapped into it
+      out = v0 < -ev .or. v1 > dsm%nrows - 1 + ev
       hb = -huge(1.0_dp)
-      if (v1 < 0.0_dp .or. v0 > dsm%nrows - 1 .or. u1 < 0.0_dp .or. u0 > dsm%ncols - 1) return
+      if (v1 < -ev .or. v0 > dsm%nrows - 1 + ev) return
+      pw = real(dsm%ncols - 1, dp)
+      if (u1 - u0 >= pw) then
+        hb = bilinear_part(0.0_dp, pw)
+        return
+      end if
+      w = floor(u0 / pw)
+      a0 = u0 - w * pw
+      a1 = u1 - w * pw
+      if (a1 <= pw) then
+        hb = bilinear_part(a0, a1)
+      else
+        hb = max(bilinear_part(a0, pw), bilinear_part(0.0_dp, a1 - pw))
+      end if
+      return
+    end if
+    if (dsm%interp == interp_bilinear) then
+      out = v0 < -ev .or. v1 > dsm%nrows - 1 + ev .or. u0 < -eu .or. u1 > dsm%ncols - 1 + eu
+      hb = -huge(1.0_dp)
+      if (v1 < -ev .or. v0 > dsm%nrows - 1 + ev .or. u1 < -eu .or. u0 > dsm%ncols - 1 + eu) return
       i0 = int(max(v0, 0.0_dp))
       i1 = min(ceiling(min(v1, real(dsm%nrows - 1, dp))), dsm%nrows - 1)
       j0 = int(max(u0, 0.0_dp))
@@ -200,18 +227,24 @@ contains
       if (i1 - i0 <= 2 .and. j1 - j0 <= 2) then
         ! a few cells: the bilinear surface's own maximum over the box (a
         ! bilinear function on a rectangle peaks at one of its corners)
-        hb = bilinear_box_max(dsm, max(u0, 0.0_dp), min(u1, real(dsm%ncols - 1, dp)), &
-                              max(v0, 0.0_dp), min(v1, real(dsm%nrows - 1, dp)), i0, i1, j0, j1)
+        ! (the box clipped to the grid: a box within the edge slack clips to the edge line)
+        hb = bilinear_box_max(dsm, min(max(u0, 0.0_dp), real(dsm%ncols - 1, dp)), &
+                              max(min(u1, real(dsm%ncols - 1, dp)), 0.0_dp), &
+                              min(max(v0, 0.0_dp), real(dsm%nrows - 1, dp)), &
+                              max(min(v1, real(dsm%nrows - 1, dp)), 0.0_dp), i0, i1, j0, j1)
       else
         hb = range_max(dsm, i0, i1, j0, j1)
       end if
     else
+      ! cells reach half a cell past the nodes, and the edge slack beyond (a box within it takes
+      ! the edge cell, as height_uv does); the cells of the box itself exactly as the callers'
+      ! one-cell tests count them (ceiling(v0 - 1/2) .. floor(v1 + 1/2)), clamped to the grid
       e = 0.5_dp
-      out = v0 < -e .or. v1 > dsm%nrows - e
+      out = v0 < -e - ev .or. v1 > dsm%nrows - 1 + e + ev
       hb = -huge(1.0_dp)
-      if (v1 < -e .or. v0 > dsm%nrows - e) return
-      i0 = max(ceiling(v0 - e), 0)
-      i1 = min(floor(v1 + e), dsm%nrows - 1)
+      if (v1 < -e - ev .or. v0 > dsm%nrows - 1 + e + ev) return
+      i0 = min(max(ceiling(v0 - e), 0), dsm%nrows - 1)
+      i1 = min(max(floor(v1 + e), 0), dsm%nrows - 1)
       if (dsm%global) then
         if (u1 - u0 >= dsm%ncols - 2) then
           hb = range_max(dsm, i0, i1, 0, dsm%ncols - 1)
@@ -229,12 +262,32 @@ contains
         end if
         return
       end if
-      out = out .or. u0 < -e .or. u1 > dsm%ncols - e
-      if (u1 < -e .or. u0 > dsm%ncols - e) return
-      j0 = max(ceiling(u0 - e), 0)
-      j1 = min(floor(u1 + e), dsm%ncols - 1)
+      out = out .or. u0 < -e - eu .or. u1 > dsm%ncols - 1 + e + eu
+      if (u1 < -e - eu .or. u0 > dsm%ncols - 1 + e + eu) return
+      j0 = min(max(ceiling(u0 - e), 0), dsm%ncols - 1)
+      j1 = min(max(floor(u1 + e), 0), dsm%ncols - 1)
       hb = range_max(dsm, i0, i1, j0, j1)
     end if
+  contains
+    !> The bilinear surface's bound over [b0, b1] x [v0, v1], b0 <= b1 within the
+    !> global grid's one turn of nodes (0 .. ncols - 1).
+    pure function bilinear_part(b0, b1) result(hp)
+      real(dp), intent(in) :: b0, b1
+      real(dp) :: hp
+      integer :: k0, k1, l0, l1
+      k0 = int(max(v0, 0.0_dp))
+      k1 = min(ceiling(min(v1, real(dsm%nrows - 1, dp))), dsm%nrows - 1)
+      l0 = min(int(max(b0, 0.0_dp)), dsm%ncols - 1)
+      l1 = min(ceiling(min(b1, real(dsm%ncols - 1, dp))), dsm%ncols - 1)
+      if (k1 - k0 <= 2 .and. l1 - l0 <= 2) then
+        hp = bilinear_box_max(dsm, min(max(b0, 0.0_dp), real(dsm%ncols - 1, dp)), &
+                              max(min(b1, real(dsm%ncols - 1, dp)), 0.0_dp), &
+                              min(max(v0, 0.0_dp), real(dsm%nrows - 1, dp)), &
+                              max(min(v1, real(dsm%nrows - 1, dp)), 0.0_dp), k0, k1, l0, l1)
+      else
+        hp = range_max(dsm, k0, k1, l0, l1)
+      end if
+    end function bilinear_part
   end subroutine dsm_box_bound
 
   !> Maximum of the bilinear surface over [u0, u1] x [v0, v1] (inside the grid),
@@ -334,6 +387,24 @@ contains
     dy = mm * abs(dsm%dlat)
     dx = nn * cos(lat) * dsm%dlon
   end subroutine dsm_cell_metres
+
+  !> Rounding slack of a point's grid column u (cells): dsm_grid_uv takes it
+  !> from a longitude wrapped by a modulo over +-pi, a few ulps of pi. A point
+  !> within it outside the grid's edge is on the edge (height_uv, dsm_box_bound):
+  !> the DSM's own edge pixel centres came out outside by ~1e-13 cells, and rays
+  !> aimed at them were LEFT_DSM (a review).
+  pure function edge_u(dsm) result(e)
+    type(dsm_t), intent(in) :: dsm
+    real(dp) :: e
+    e = 8.0_dp * spacing(pi) / dsm%dlon
+  end function edge_u
+
+  !> Rounding slack of a point's grid row v (cells), as edge_u.
+  pure function edge_v(dsm) result(e)
+    type(dsm_t), intent(in) :: dsm
+    real(dp) :: e
+    e = 8.0_dp * spacing(pi) / abs(dsm%dlat)
+  end function edge_v
 
   pure function ieee_nan() result(x)
     real(dp) :: x

@@ -29,7 +29,7 @@ module pi_dsm_exact
   use pi_status
   use pi_vector, only: pi, axis_distance, far_distance
   use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, pt_ok, pt_outside, &
-                    pt_nodata
+                    pt_nodata, range_max
   use pi_follow, only: dsm_ray_t, follow_ray, iterate_ray, ray_geo, level_crossing, level_crossing_back, &
                        set_hit, set_event, settle_start, refine_tol, newton_tol
   use pi_geodetic, only: ecr_to_geodetic
@@ -121,7 +121,14 @@ contains
     den = mmin + min(hlow, 0.0_dp)
     if (.not. (den > 0.5_dp * mmin)) return
     rho = axis_distance(s, l, pa%r, pb%r)
-    if (.not. (rho > 1.0e-9_dp * dsm%a)) return
+    if (.not. (rho > 1.0e-9_dp * dsm%a)) then
+      ! within ~6 mm of the polar axis (a drone over the pole: every segment there was subdivided to
+      ! refine_tol, 200,000 of them, STEP_LIMIT): longitude is anything, and a point at axis distance
+      ! rho_P has cos(lat) = rho_P / (N + h) <= rho_P / (a + h), N >= a; rho_P is largest at an end
+      ! (the distance to a line is convex along a segment)
+      call polar_box(dsm, s, l, pa%r, pb%r, hlow, hb, out)
+      return
+    end if
     ! |dlat/dr| = |l . north| / (M + h); l . north changes by at most kap per unit r
     kap = 1.0_dp / den + 1.0_dp / rho
     keff = min((abs(pa%ln) + llen * kap) / den, 1.0_dp / den)
@@ -172,6 +179,62 @@ contains
       end if
     end if
   end subroutine segment_bounds
+
+  !> segment_bounds' box for a segment [ra, rb] near the polar axis: all longitudes,
+  !> latitudes from the pole down to the colatitude acos-bound of its farthest
+  !> point from the axis (hb = +huge, out = .true. where that does not apply: the
+  !> ends on both sides of the equator, or a colatitude bound above 0.1 rad).
+  pure subroutine polar_box(dsm, s, l, ra, rb, hlow, hb, out)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3), ra, rb, hlow
+    real(dp), intent(out) :: hb
+    logical, intent(out) :: out
+    real(dp) :: pa(3), pb(3), rho_max, den, colat, lat_lo, lat_hi, v0, v1, w, lo
+    integer :: i0, i1, j, cw
+    hb = huge(1.0_dp)
+    out = .true.
+    pa = s + ra * l
+    pb = s + rb * l
+    if (.not. (pa(3) * pb(3) > 0.0_dp)) return
+    rho_max = max(hypot(pa(1), pa(2)), hypot(pb(1), pb(2)))
+    den = dsm%a + min(hlow, 0.0_dp)
+    if (.not. (den > 0.5_dp * dsm%a)) return
+    colat = 1.001_dp * rho_max / den + 1.0e-12_dp      ! >= asin(rho_max / den) for these small angles
+    if (.not. (colat < 0.1_dp)) return
+    if (pa(3) > 0.0_dp) then
+      lat_lo = 0.5_dp * pi - colat
+      lat_hi = 0.5_dp * pi
+    else
+      lat_lo = -0.5_dp * pi
+      lat_hi = -0.5_dp * pi + colat
+    end if
+    v0 = (lat_lo - dsm%lat0) / dsm%dlat
+    v1 = (lat_hi - dsm%lat0) / dsm%dlat
+    if (v0 > v1) then
+      w = v0; v0 = v1; v1 = w
+    end if
+    ! the rows the band touches (nodes for bilinear, cells for nearest), every column; the grid
+    ! does not hold all longitudes unless global, so the box is then partly outside (out)
+    lo = 0.0_dp
+    if (dsm%interp == interp_nearest) lo = 0.5_dp
+    out = .not. dsm%global .or. v0 < -lo .or. v1 > dsm%nrows - 1 + lo
+    hb = -huge(1.0_dp)
+    if (v1 < -lo .or. v0 > dsm%nrows - 1 + lo) return
+    if (dsm%interp == interp_nearest) then
+      i0 = min(max(ceiling(v0 - 0.5_dp), 0), dsm%nrows - 1)
+      i1 = min(max(floor(v1 + 0.5_dp), 0), dsm%nrows - 1)
+    else
+      i0 = min(max(floor(v0), 0), dsm%nrows - 1)
+      i1 = min(max(ceiling(v1), 0), dsm%nrows - 1)
+    end if
+    ! a thin band of rows across every column: range_max's square pyramid blocks would take in
+    ! rows far from the pole (a tower 10 rows away kept the segments near the axis from ever being
+    ! ruled out); column chunks as wide as the band is tall keep the blocks tight
+    cw = max(2, i1 - i0 + 1)
+    do j = 0, dsm%ncols - 1, cw
+      hb = max(hb, range_max(dsm, i0, i1, j, min(j + cw - 1, dsm%ncols - 1)))
+    end do
+  end subroutine polar_box
 
   !> Exact first hit for one ray (l unit, s above the surface).
   pure subroutine exact_ray(dsm, s, l, res)

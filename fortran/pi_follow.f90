@@ -286,11 +286,16 @@ contains
       p = s + r * l
       call ecr_to_geodetic(p(1), p(2), p(3), dsm%a, dsm%f, late, lone, he)
       cos_ti = 1.0_dp
+      sin_ti = 0.0_dp
     end if
     r = max(r, 0.0_dp)
     call dsm_cell_metres(dsm, late, dy, dx)
     dd = min(dy, dx)                                         ! D_DSM in metres at the projected point [note 7]
     dr = dd / cos_ti                                         ! eq. 4 [note 8]
+    ! ... at most the slab (H_max to H_min, plus one D) along the ray: below H_min every point over
+    ! the DSM is a hit, so a longer step samples nothing more; near nadir eq. 4's step was thousands
+    ! of km (a MISS for rays 1e-7 rad off nadir, a hit 62 km underground: a review) [note 8]
+    if (sin_ti > 0.0_dp) dr = min(dr, (dsm%hmax - dsm%hmin + dd) / sin_ti)
     ! ---- steps 2-5
     rprev = r
     hprev = huge(1.0_dp)

@@ -69,6 +69,7 @@ contains
     lat = atan2(z + (a * a / (b * b)) * e2 * sin(th)**3, p - e2 * a * cos(th)**3)  ! eq. 2 as printed [note 1]
     lon = atan2(y, x)                                                ! eq. 2, lambda
     h = p / cos(lat) - a / sqrt(1.0_dp - e2 * sin(lat)**2)           ! eq. 2, h
+    if (p == 0.0_dp) h = abs(z) - b                                  ! on the axis p/cos(lat) is 0/0 [note 2]
   end subroutine ecr_to_geodetic_printed
 
   !> Shin & Park eq. 2 as Bowring/Dana state it (e'^2 b sin^3 theta) [note 1]:
@@ -88,6 +89,9 @@ contains
     lat = atan2(z + ep2 * b * sin(th)**3, p - e2 * a * cos(th)**3)   ! eq. 2, phi [note 1]
     lon = atan2(y, x)                                                ! eq. 2, lambda
     h = p / cos(lat) - a / sqrt(1.0_dp - e2 * sin(lat)**2)           ! eq. 2, h [note 2]
+    ! on the axis p / cos(lat) is 0/0 rounded to 0 (h = -N: -6,399,594 m at the pole itself, and a
+    ! drone 50 m over the pole was a hit at its own focal point in the following; a review)
+    if (p == 0.0_dp) h = abs(z) - b
   end subroutine ecr_to_geodetic_bowring
 
   !> Exact ECR -> geodetic conversion (see the module header).

@@ -90,7 +90,7 @@ def test_antimeridian_extent():
     (dict(dlon=np.nan), "dlon must be finite"),
     (dict(lat_first=89.5, dlat=1.0), r"outside \[-90, 90\]"),
     (dict(dlon=200.0), "exceeds 360"),
-    (dict(a=0.0), "a .semi-major axis. must be positive"),
+    (dict(a=0.0), "a .semi-major axis. must be in"),
     (dict(f=-0.1), "f .flattening. must be in"),
     (dict(interpolation="cubic"), "interpolation must be 'bilinear' or 'nearest'"),
     (dict(geoid=np.ones((3, 3))), "geoid must be a scalar or an array shaped like heights"),

@@ -134,7 +134,12 @@ def test_other_body_and_sphere():
     (lambda: pi.ecef_to_geodetic([1, 2]), "p: expected shape"),
     (lambda: pi.ecef_to_geodetic([np.nan, 0, 0]), r"p\[0\] has NaN"),
     (lambda: pi.ecef_to_geodetic([1, 0, 0], method="fast"), "method must be"),
-    (lambda: pi.ecef_to_geodetic([1, 0, 0], a=-1), "a .semi-major axis. must be positive"),
+    (lambda: pi.ecef_to_geodetic([1, 0, 0], a=-1), "a .semi-major axis. must be in"),
+    # the range where the exact conversion's tolerances hold (a review: silently wrong at a = 1e-90,
+    # NaN at 1e120 and for |p| > 1e154 with WGS-84)
+    (lambda: pi.ecef_to_geodetic([1e-90, 0, 1e-90], a=1e-90), "a .semi-major axis. must be in"),
+    (lambda: pi.ecef_to_geodetic([1e120, 0, 1e120], a=1e120), "a .semi-major axis. must be in"),
+    (lambda: pi.ecef_to_geodetic([1e155, 0, 0]), r"p\[0\] .* farther than 1e\+15 a"),
     (lambda: pi.ecef_to_geodetic([1, 0, 0], f=1.0), r"f \(flattening\) must be in \[0, 1\)"),
     (lambda: pi.geodetic_to_ecef(91.0, 0, 0), r"lat\[0\] = 91.0 is outside"),
     (lambda: pi.geodetic_to_ecef([0, 1], [0, 1, 2], 0), "do not broadcast"),

@@ -122,6 +122,9 @@ class GeodeticDSM:
             nodata = nd
         lat_first = _number(lat_first, "lat_first")
         lon_first = _number(lon_first, "lon_first")
+        if abs(lon_first) >= 360.0:
+            # reduced exactly (fmod is exact): radians of an unreduced 1e20 lost the grid (a review)
+            lon_first = math.fmod(lon_first, 360.0)
         dlat = _number(dlat, "dlat")
         dlon = _number(dlon, "dlon")
         if dlat == 0:
@@ -136,8 +139,10 @@ class GeodeticDSM:
         if ncols * dlon > 360.0 * (1 + 1e-12):
             raise DSMError(f"ncols * dlon = {ncols * dlon} degrees exceeds 360")
         a, f = check_ellipsoid(a, f)
+        geoid_name = "geoid"
         if isinstance(geoid, (str, os.PathLike)):            # a second raster on the same grid
             g = GeodeticDSM.read(geoid, a=a, f=f)
+            geoid_name = f"geoid raster {geoid}"
             same = (g.heights.shape == h.shape and
                     np.allclose([g.lat_first, g.lon_first, g.dlat, g.dlon], [lat_first, lon_first, dlat, dlon],
                                 rtol=0, atol=1e-9 * max(abs(dlat), abs(dlon))))
@@ -152,7 +157,9 @@ class GeodeticDSM:
             if n_.ndim not in (0, 2) or (n_.ndim == 2 and n_.shape != h.shape):
                 raise DSMError(f"geoid must be a scalar or an array shaped like heights {h.shape}, got {n_.shape}")
             if not np.isfinite(n_).all():
-                raise DSMError("geoid has NaN or Inf values")
+                bad = np.argwhere(~np.isfinite(np.broadcast_to(n_, h.shape)))[0]
+                raise DSMError(f"{geoid_name} has NaN, Inf or no-data values (first at row {bad[0]}, column "
+                               f"{bad[1]}): the undulation is needed at every cell")
             h = h + n_
         data = np.isfinite(h)
         if not data.any():
@@ -214,17 +221,37 @@ class GeodeticDSM:
         new = object.__new__(type(self))
         new.__dict__.update(self.__dict__)
         new._interp = interpolation
+        if new._core_heights().shape != self._core_heights().shape:
+            new._pyramid = None                           # a global grid's seam column comes or goes
         return new
 
+    def _core_heights(self) -> np.ndarray:
+        """The heights the core works on: the grid itself, except a global bilinear one (its columns
+        cover 360 degrees), which gets its first column repeated after the last, so that the cell
+        across the seam is interpolated between its last and first columns (the core's surface is
+        bilinear between nodes: it had no surface there, and every ray into that strip was LEFT_DSM;
+        a review). The core knows such a grid by its span (fortran/pi_dsm.f90, dsm_box_bound)."""
+        if self._interp == "bilinear" and self.ncols * self._dlon >= 360.0 * (1.0 - 1e-12):
+            ch = self.__dict__.get("_ch")
+            if ch is None or ch.shape[1] != self.ncols + 1:
+                ch = np.concatenate([self._h, self._h[:, :1]], axis=1)
+                ch.flags.writeable = False
+                self._ch = ch
+            return ch
+        return self._h
+
     def _core_grid(self):
-        return (self._h.T, math.radians(self._lat_first), math.radians(self._lon_first),
+        return (self._core_heights().T, math.radians(self._lat_first), math.radians(self._lon_first),
                 math.radians(self._dlat), math.radians(self._dlon), self._a, self._f, _INTERP[self._interp])
 
     def height(self, lat, lon) -> np.ndarray:
         """Surface height H at geodetic (lat, lon) in degrees (NaN outside or over no-data)."""
         from ._ext import core as _core
 
-        lat, lon = np.broadcast_arrays(np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64))
+        try:
+            lat, lon = np.broadcast_arrays(np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64))
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"lat, lon: expected numbers (degrees) that broadcast ({exc})") from None
         shape = lat.shape
         if lat.size == 0:
             return np.zeros(shape)
@@ -243,7 +270,8 @@ class GeodeticDSM:
         if self._pyramid is not None:
             return self._pyramid
         big = np.finfo(np.float64).max
-        level = np.where(np.isnan(self._h), big, self._h)
+        hc = self._core_heights()
+        level = np.where(np.isnan(hc), big, hc)
         parts, meta, off = [], [], 0
         while True:
             r, c = level.shape
@@ -283,6 +311,8 @@ class GeodeticDSM:
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"DSM file {path}: no such file")
+        if isinstance(band, (bool, np.bool_)) or not isinstance(band, (int, np.integer)):
+            raise DSMError(f"band must be a whole number (1 for the first band), got {band!r}")
         if path.suffix.lower() == ".npz":
             return cls._read_npz(path, nodata, geoid, interpolation, a, f, hmax)
         return cls._read_raster(path, band, nodata, geoid, interpolation, resampling, a, f, hmax)
@@ -321,6 +351,8 @@ class GeodeticDSM:
             if not (1 <= band <= src.count):
                 raise DSMError(f"DSM file {path}: band {band} does not exist (the file has {src.count})")
             nd = nodata if nodata is not None else src.nodata
+            if nodata is None and nd is not None and not math.isfinite(nd):
+                nd = None                               # a NaN tag (GDAL's usual): NaN is no data already
             warped = None
             if src.crs.is_geographic and _geographic_datum(src.crs, src.bounds, path, "DSM", a, f) == "as-is":
                 t = src.transform
@@ -609,5 +641,7 @@ def _ellipsoid_entry(s, l, a, f):
         sq = np.sqrt(disc)
         r1 = (-qb - sq) / qa
         r2 = (-qb + sq) / qa
-    r = np.where(r1 >= 0, r1, np.where(r2 >= 0, 0.0, np.nan))
+    # the nearer root when s is outside, the exit root when s is inside the ellipsoid (a point below
+    # h = 0 over a DSM of negative heights: it was given as r = 0, the focal point itself; a review)
+    r = np.where(r1 >= 0, r1, np.where(r2 >= 0, r2, np.nan))
     return np.where(disc >= 0, r, np.nan)

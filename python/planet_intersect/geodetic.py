@@ -24,6 +24,12 @@ WGS84_F = 1.0 / 298.257223563
 _METHODS = {"exact": 0, "bowring": 1, "printed": 2}
 
 
+#: the semi-major axes accepted (any unit)
+A_MIN, A_MAX = 1e-30, 1e30
+#: farthest point ecef_to_geodetic converts, in units of a (|p|^2 stays far from overflow)
+P_MAX_A = 1e15
+
+
 def check_ellipsoid(a, f) -> tuple[float, float]:
     """Validate the ellipsoid: ``a`` positive and finite, ``0 <= f < 1``."""
     try:
@@ -31,8 +37,10 @@ def check_ellipsoid(a, f) -> tuple[float, float]:
         f = float(f)
     except (TypeError, ValueError):
         raise ValueError(f"a and f must be numbers, got a={a!r}, f={f!r}") from None
-    if not (math.isfinite(a) and a > 0):
-        raise ValueError(f"a (semi-major axis) must be positive and finite, got {a}")
+    if not (math.isfinite(a) and A_MIN <= a <= A_MAX):
+        # the exact conversion's tolerances and squares hold in this range (a review found it silently
+        # wrong for a <= 1e-90 and NaN for a >= 1e120); any unit from micrometres to light years fits
+        raise ValueError(f"a (semi-major axis) must be in [{A_MIN:g}, {A_MAX:g}] (any unit), got {a}")
     if not (math.isfinite(f) and 0.0 <= f < 1.0):
         raise ValueError(f"f (flattening) must be in [0, 1), got {f}")
     return a, f
@@ -49,10 +57,12 @@ def ecef_to_geodetic(p, a: float = WGS84_A, f: float = WGS84_F, method: str = "e
         Semi-major axis and flattening of the ellipsoid (WGS-84 by default).
     method : "exact", "bowring" or "printed"
         "exact" (default): the nearest point on the ellipsoid by a safeguarded
-        Newton iteration (relative accuracy ~1e-15, any point, poles and centre
-        included). "bowring": Shin & Park eq. 2 as Bowring/Dana state it (one
-        step; docs/shin-park-notes.md notes 1-2 give its error). "printed": eq. 2
-        exactly as printed in the paper (a factor b missing: note 1).
+        Newton iteration (relative accuracy ~1e-15, any point within 1e15 a of
+        the centre, poles and centre included). "bowring": Shin & Park eq. 2 as
+        Bowring/Dana state it (one step; docs/shin-park-notes.md notes 1-2 give
+        its error; meaningless inside the evolute, within ~e^2 a of the centre,
+        where its latitude can leave [-90, 90]). "printed": eq. 2 exactly as
+        printed in the paper (a factor b missing: note 1).
 
     Returns
     -------
@@ -74,6 +84,10 @@ def ecef_to_geodetic(p, a: float = WGS84_A, f: float = WGS84_F, method: str = "e
     if not np.isfinite(arr).all():
         k = int(np.argmax(~np.isfinite(arr).all(axis=1)))
         raise ValueError(f"p[{k}] has NaN or Inf components: {arr[k]}")
+    far = np.max(np.abs(arr), axis=1) > P_MAX_A * a if arr.size else np.zeros(0, dtype=bool)
+    if far.any():
+        k = int(np.argmax(far))
+        raise ValueError(f"p[{k}] = {arr[k]} is farther than {P_MAX_A:g} a from the centre")
     lat, lon, h = _core.core_ecr_to_geodetic(np.ascontiguousarray(arr).T, a, f, _METHODS[method])
     lat = np.degrees(lat)
     lon = _wrap180(np.degrees(lon))
@@ -107,6 +121,8 @@ def geodetic_to_ecef(lat, lon, h, a: float = WGS84_A, f: float = WGS84_F) -> np.
         raise ValueError(f"lat, lon and h do not broadcast: {exc}") from None
     single = lat.ndim == 0
     lat, lon, h = (np.ascontiguousarray(v).ravel() for v in (lat, lon, h))
+    if lat.size == 0:
+        return np.zeros((0, 3))
     for name, v in (("lat", lat), ("lon", lon), ("h", h)):
         if not np.isfinite(v).all():
             raise ValueError(f"{name}[{int(np.argmax(~np.isfinite(v)))}] is NaN or Inf")

@@ -207,6 +207,8 @@ class OrthoImage:
             if src.crs is None:
                 raise ValueError(f"ortho-image file {path}: no CRS (a geographic or projected CRS is needed)")
             nd = nodata if nodata is not None else src.nodata
+            if nodata is None and nd is not None and not np.isfinite(nd):
+                nd = None                               # a NaN tag: NaN is no data already
             data = src.read()                                   # (bands, rows, cols)
             dtype = data.dtype
             from .dsm import _geographic_datum
@@ -615,6 +617,8 @@ def _simulate(dsm, ortho, sensor, method, walls, shading, sun_arr, ambient, fill
     lat_mid = dsm.lat_first + 0.5 * (dsm.nrows - 1) * dsm.dlat
     my, mx = _metres_per_degree(lat_mid, 0.0, dsm.a, dsm.f)
     grid = dsm._core_grid()
+    if grid[0].shape[0] == ground_grid.shape[1] + 1:          # a global bilinear DSM's seam column
+        ground_grid = np.concatenate([ground_grid, ground_grid[:, :1]], axis=1)
     gnd = np.ascontiguousarray(ground_grid, dtype=np.float64).T
     ov = ortho._core_values()
     if sun_arr is None:
