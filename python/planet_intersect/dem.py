@@ -203,6 +203,23 @@ def _check_radii(radii, rmax: float, where: str) -> float:
     return top
 
 
+def _byteswap_hint(dem: Path, dtype: np.dtype, nlon: int, h: dict) -> str:
+    """' (the data look byte-swapped: ...)' when the first rows of ``dem`` read in the other byte
+    order are finite radii within [rmax / 1e6, rmax], else ''."""
+    try:
+        n = min(64 * nlon, dem.stat().st_size // dtype.itemsize)
+        raw = np.fromfile(dem, dtype=dtype.newbyteorder(), count=n)
+    except (OSError, ValueError):
+        return ""
+    with np.errstate(invalid="ignore", over="ignore"):
+        ok = raw.size > 0 and bool(np.all(np.isfinite(raw))) and bool(np.all(raw > h["rmax"] * 1e-6)) \
+            and bool(np.all(raw <= h["rmax"]))
+    if not ok:
+        return ""
+    other = "little" if h["byteorder"] == "big" else "big"
+    return f" (the data look byte-swapped: they read as radii with 'byteorder = {other}' in the header)"
+
+
 def _float32_up(x: np.ndarray) -> np.ndarray:
     """float64 values as the nearest float32 at or above each."""
     with np.errstate(over="ignore"):          # radii beyond float32 (up to 1e100) become +inf: still a bound
@@ -290,8 +307,14 @@ class DEM:
                 f"DEM data {dem}: size {size} bytes, but the header (ppd = {ppd}, {h['dtype']}) "
                 f"needs {nlat} x {nlon} x {itemsize} = {expected} bytes")
         dtype = np.dtype(h["dtype"]).newbyteorder(_BYTEORDERS[h["byteorder"]])
-        top = _check_radii((dem, dtype, (nlat, nlon)), h["rmax"], where=f"DEM data {dem}")
-        _check_rmax_tight(h["rmax"], top, f"DEM header {hdr}")
+        try:
+            with np.errstate(invalid="ignore", over="ignore"):
+                top = _check_radii((dem, dtype, (nlat, nlon)), h["rmax"], where=f"DEM data {dem}")
+                _check_rmax_tight(h["rmax"], top, f"DEM header {hdr}")
+        except DEMError as exc:
+            # data that would pass in the other byte order: say so (the messages blamed rmax or a NaN
+            # radius, never the byte order: a review)
+            raise DEMError(f"{exc}{_byteswap_hint(dem, dtype, nlon, h)}") from None
         radii = np.memmap(dem, dtype=dtype, mode="r", shape=(nlat, nlon))
         out = cls(radii, ppd, h["rmax"], h["f"], h["re"], path=hdr, header=h)
         if out._identity[2] != expected:                    # changed between the check and the map
@@ -488,6 +511,17 @@ class DEM:
         for p in (hdr, dem):
             if p.exists() and not overwrite:
                 raise FileExistsError(f"{p} exists; pass overwrite=True to replace it")
+        if self.path is not None:
+            # the map of a file truncated since it was read would die of SIGBUS here (a review)
+            self.check_file()
+        if dtype == "float32":
+            # float32 holds about 1.2e-38 .. 3.4e38 as normal numbers: outside, radii the format
+            # accepts became inf or 0 and the pair could not be read back (a review)
+            lo, hi = float(np.min(self.radii)), max(float(np.max(self.radii)), self.rmax)
+            fi = np.finfo(np.float32)
+            if not (lo >= float(fi.tiny) and hi <= float(fi.max)):
+                raise ValueError(f"dtype='float32' cannot hold these radii ({lo:g} .. {hi:g}; float32 holds "
+                                 f"{float(fi.tiny):g} .. {float(fi.max):g}): write float64")
         data = np.asarray(self.radii, dtype=np.dtype(dtype).newbyteorder(_BYTEORDERS[byteorder]))
         tmp_dem = dem.with_name(dem.name + ".part")
         with open(tmp_dem, "wb") as fh:

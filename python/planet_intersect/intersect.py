@@ -309,7 +309,10 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
             out = _core.core_intersect_mapped(mapped, dem.radii.dtype.itemsize, dem.ppd, dem.rmax, dem.f, dem.re,
                                               dem.mapped_poles(), s.T, l.T, step_mode, _TANGENT[tangent], pyr_data, pyr_meta.T, **extra)
         else:
-            out = _core.core_intersect_file(str(dem.path), 1, *dem.header_args(), s.T, l.T, step_mode,
+            # the path as bytes: f2py takes a str only in ASCII (a non-ASCII path failed with
+            # "function takes exactly 5 arguments (1 given)": a review); the Fortran opens bytes
+            out = _core.core_intersect_file(os.fsencode(str(dem.path)), 1, *dem.header_args(), s.T, l.T,
+                                            step_mode,
                                             _TANGENT[tangent], pyr_data, pyr_meta.T, use_map=int(io == "mmap"),
                                             **extra)
         where = f"intersect (dem_read_mode=1, {dem.path})"
