@@ -220,21 +220,7 @@ contains
       out = v0 < -ev .or. v1 > dsm%nrows - 1 + ev .or. u0 < -eu .or. u1 > dsm%ncols - 1 + eu
       hb = -huge(1.0_dp)
       if (v1 < -ev .or. v0 > dsm%nrows - 1 + ev .or. u1 < -eu .or. u0 > dsm%ncols - 1 + eu) return
-      i0 = int(max(v0, 0.0_dp))
-      i1 = min(ceiling(min(v1, real(dsm%nrows - 1, dp))), dsm%nrows - 1)
-      j0 = int(max(u0, 0.0_dp))
-      j1 = min(ceiling(min(u1, real(dsm%ncols - 1, dp))), dsm%ncols - 1)
-      if (i1 - i0 <= 2 .and. j1 - j0 <= 2) then
-        ! a few cells: the bilinear surface's own maximum over the box (a
-        ! bilinear function on a rectangle peaks at one of its corners)
-        ! (the box clipped to the grid: a box within the edge slack clips to the edge line)
-        hb = bilinear_box_max(dsm, min(max(u0, 0.0_dp), real(dsm%ncols - 1, dp)), &
-                              max(min(u1, real(dsm%ncols - 1, dp)), 0.0_dp), &
-                              min(max(v0, 0.0_dp), real(dsm%nrows - 1, dp)), &
-                              max(min(v1, real(dsm%nrows - 1, dp)), 0.0_dp), i0, i1, j0, j1)
-      else
-        hb = range_max(dsm, i0, i1, j0, j1)
-      end if
+      hb = bilinear_part(u0, u1)
     else
       ! cells reach half a cell past the nodes, and the edge slack beyond (a box within it takes
       ! the edge cell, as height_uv does); the cells of the box itself exactly as the callers'
@@ -269,13 +255,15 @@ contains
       hb = range_max(dsm, i0, i1, j0, j1)
     end if
   contains
-    !> The bilinear surface's bound over [b0, b1] x [v0, v1], b0 <= b1 within the
-    !> global grid's one turn of nodes (0 .. ncols - 1).
+    !> The bilinear surface's bound over [b0, b1] x [v0, v1] (within the grid's
+    !> nodes, or beyond them by the edge slack at most: clipped to the edge line):
+    !> for a few cells the surface's own maximum over the box (a bilinear
+    !> function on a rectangle peaks at one of its corners), else the pyramid's.
     pure function bilinear_part(b0, b1) result(hp)
       real(dp), intent(in) :: b0, b1
       real(dp) :: hp
       integer :: k0, k1, l0, l1
-      k0 = int(max(v0, 0.0_dp))
+      k0 = min(int(max(v0, 0.0_dp)), dsm%nrows - 1)
       k1 = min(ceiling(min(v1, real(dsm%nrows - 1, dp))), dsm%nrows - 1)
       l0 = min(int(max(b0, 0.0_dp)), dsm%ncols - 1)
       l1 = min(ceiling(min(b1, real(dsm%ncols - 1, dp))), dsm%ncols - 1)
