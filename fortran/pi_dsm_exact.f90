@@ -189,7 +189,7 @@ contains
     real(dp), intent(in) :: s(3), l(3), ra, rb, hlow
     real(dp), intent(out) :: hb
     logical, intent(out) :: out
-    real(dp) :: pa(3), pb(3), rho_max, den, colat, lat_lo, lat_hi, v0, v1, w, lo
+    real(dp) :: pa(3), pb(3), rho_max, den, colat, lat_lo, lat_hi, v0, v1, w, lo, f0, f1, h0, h1
     integer :: i0, i1, j, cw
     hb = huge(1.0_dp)
     out = .true.
@@ -226,6 +226,25 @@ contains
     else
       i0 = min(max(floor(v0), 0), dsm%nrows - 1)
       i1 = min(max(ceiling(v1), 0), dsm%nrows - 1)
+    end if
+    if (dsm%interp /= interp_nearest .and. i1 <= i0 + 1) then
+      ! a bilinear band inside one row of cells: the surface itself, linear in v along each node
+      ! column, so its largest value is at v0 or v1 on some column (the node rows' maximum took in
+      ! the next row's heights and the segments at the pole were never ruled out: a review)
+      if (i1 == i0) i1 = min(i0 + 1, dsm%nrows - 1)
+      f0 = min(max(v0 - i0, 0.0_dp), 1.0_dp)
+      f1 = min(max(v1 - i0, 0.0_dp), 1.0_dp)
+      do j = 1, dsm%ncols
+        h0 = dsm%hgt(j, i0 + 1)
+        h1 = dsm%hgt(j, i1 + 1)
+        if (ieee_is_nan(h0) .or. ieee_is_nan(h1)) then
+          hb = huge(1.0_dp)
+          return
+        end if
+        hb = max(hb, h0 + f0 * (h1 - h0), h0 + f1 * (h1 - h0))
+      end do
+      hb = hb + 1.0e-12_dp * (1.0_dp + abs(hb))            ! (the rounding of the two products)
+      return
     end if
     ! a thin band of rows across every column: range_max's square pyramid blocks would take in
     ! rows far from the pole (a tower 10 rows away kept the segments near the axis from ever being

@@ -409,3 +409,21 @@ def test_following_near_nadir_and_over_the_pole():
         r = pi.intersect(dp, s, l, method=method)
         assert r.status[0] == DSMStatus.HIT and r.distance[0] > 49.0 and abs(r.height[0]) < 1e-3, \
             (method, r.status[0], r.distance[0], r.height[0])
+
+
+def test_drone_on_the_polar_axis_over_a_bilinear_pole():
+    """A drone on the polar axis (and 1 mm, 5 mm off it) looking straight down at a global
+    bilinear grid whose first row is the pole (one height there): a hit in a few dozen
+    conversions. The node rows' maximum over the polar band took in the next row's heights, and
+    the segments at the pole were never ruled out: STEP_LIMIT (a second review)."""
+    rng = np.random.default_rng(2)
+    nr, nc = 30, 36
+    h = rng.uniform(5.0, 8.0, (nr, nc))
+    h[0] = 6.0                                            # the pole: one height
+    dsm = GeodeticDSM.from_array(h, 90.0, -180.0, -0.5, 10.0)
+    b = 6356752.314245
+    for off in (0.0, 1e-3, 5e-3):
+        s = np.array([off, 0.0, b + 50.0])
+        r = pi.intersect(dsm, s, np.array([0.0, 0.0, -1.0]), method="exact")
+        assert r.status[0] == DSMStatus.HIT and r.nsteps[0] < 200, (off, r.status[0], r.nsteps[0])
+        assert abs(r.height[0] - 6.0) < 1e-4 and abs(r.distance[0] - 44.0) < 1e-3, (off, r.height[0], r.distance[0])
