@@ -48,6 +48,12 @@ module pi_dsm
     real(dp) :: hmax = 0, hmin = 0
     !> true when the columns cover 360 degrees (longitude boxes then wrap)
     logical :: global = .false.
+    !> rounding slack of a point's grid column u and row v (cells): 8 ulp(pi)/dlon and
+    !> 8 ulp(pi)/|dlat|. u comes from a longitude wrapped by a modulo over +-pi, a few ulps
+    !> of pi; a point within it outside the grid's edge is on the edge (height_uv,
+    !> dsm_box_bound): the DSM's own edge pixel centres came out outside by ~1e-13 cells,
+    !> and rays aimed at them were LEFT_DSM (a review)
+    real(dp) :: eu = 0, ev = 0
   end type dsm_t
 
 contains
@@ -82,6 +88,8 @@ contains
     dsm%hmax = hmax
     dsm%hmin = hmin
     dsm%global = dsm%ncols * dlon >= 2.0_dp * pi * (1.0_dp - 1.0e-12_dp)
+    dsm%eu = 8.0_dp * spacing(pi) / dlon
+    dsm%ev = 8.0_dp * spacing(pi) / abs(dlat)
   end subroutine dsm_attach
 
   !> Continuous grid coordinates of (lat, lon): u = column, v = row (0-based,
@@ -121,8 +129,8 @@ contains
     real(dp) :: fu, fv, h00, h01, h10, h11, tu, tv, w, eu, ev
     hs = ieee_nan()
     code = pt_outside
-    eu = edge_u(dsm)
-    ev = edge_v(dsm)
+    eu = dsm%eu
+    ev = dsm%ev
     if (dsm%interp == interp_bilinear) then
       if (.not. (v >= -ev .and. v <= dsm%nrows - 1 + ev .and. u >= -eu .and. u <= dsm%ncols - 1 + eu)) return
       i = min(int(max(v, 0.0_dp)), dsm%nrows - 2)
@@ -193,8 +201,8 @@ contains
     hb = huge(1.0_dp)
     out = .true.
     if (.not. (u1 >= u0 .and. v1 >= v0)) return
-    eu = edge_u(dsm)
-    ev = edge_v(dsm)
+    eu = dsm%eu
+    ev = dsm%ev
     if (dsm%interp == interp_bilinear .and. dsm%global) then
       ! a global bilinear grid comes with its first column repeated after the last (GeodeticDSM's
       ! core grid): its nodes span one turn, u = 0 .. P, P = ncols - 1; the box wrapped into it
@@ -375,24 +383,6 @@ contains
     dy = mm * abs(dsm%dlat)
     dx = nn * cos(lat) * dsm%dlon
   end subroutine dsm_cell_metres
-
-  !> Rounding slack of a point's grid column u (cells): dsm_grid_uv takes it
-  !> from a longitude wrapped by a modulo over +-pi, a few ulps of pi. A point
-  !> within it outside the grid's edge is on the edge (height_uv, dsm_box_bound):
-  !> the DSM's own edge pixel centres came out outside by ~1e-13 cells, and rays
-  !> aimed at them were LEFT_DSM (a review).
-  pure function edge_u(dsm) result(e)
-    type(dsm_t), intent(in) :: dsm
-    real(dp) :: e
-    e = 8.0_dp * spacing(pi) / dsm%dlon
-  end function edge_u
-
-  !> Rounding slack of a point's grid row v (cells), as edge_u.
-  pure function edge_v(dsm) result(e)
-    type(dsm_t), intent(in) :: dsm
-    real(dp) :: e
-    e = 8.0_dp * spacing(pi) / abs(dsm%dlat)
-  end function edge_v
 
   pure function ieee_nan() result(x)
     real(dp) :: x
