@@ -53,6 +53,10 @@ module pi_dsm_exact
   integer, parameter :: ray_fast_declined = 99
   !> segment limit per ray (then ray_step_limit) and subdivision stack depth
   integer, parameter :: exact_maxseg = 200000, exact_depth = 128
+  !> chord_class: the kinds it returns, and the largest departure of a segment's path from its chord
+  !> in grid coordinates (cells) for which it applies
+  integer, parameter :: chord_outside = -2, chord_cell = 1
+  real(dp), parameter :: chord_dev = 1.0e-7_dp
 
   !> a point of the ray with what the bounds need
   type :: rpt_t
@@ -126,7 +130,7 @@ contains
       ! refine_tol, 200,000 of them, STEP_LIMIT): longitude is anything, and a point at axis distance
       ! rho_P has cos(lat) = rho_P / (N + h) <= rho_P / (a + h), N >= a; rho_P is largest at an end
       ! (the distance to a line is convex along a segment)
-      call polar_box(dsm, s, l, pa%r, pb%r, hlow, hb, out)
+      call polar_box(dsm, s, l, pa%r, pb%r, pa%lon, pb%lon, rho, hlow, hb, out)
       return
     end if
     ! |dlat/dr| = |l . north| / (M + h); l . north changes by at most kap per unit r
@@ -137,9 +141,9 @@ contains
     w = 1.0e-12_dp * (1.0_dp + abs(lat_hi))
     v0 = (lat_lo - w - dsm%lat0) / dsm%dlat
     v1 = (lat_hi + w - dsm%lat0) / dsm%dlat
-    if (v0 > v1) then
-      w = v0; v0 = v1; v1 = w
-    end if
+    if (v0 > v1) then                                      ! (not through w: the edge test below needs it;
+      t = v0; v0 = v1; v1 = t                              ! it took the swapped row and no segment of a
+    end if                                                 ! north-up grid was ever "along the edge")
     du = modulo(pb%lon - pa%lon + pi, 2.0_dp * pi) - pi
     if (.not. (abs(du) < 0.5_dp * pi)) return             ! longitude is monotone: a short sweep only
     ! the margin in u: 1e-9 cells and the rounding of the wrapped longitudes (du and each point's
@@ -180,16 +184,18 @@ contains
     end if
   end subroutine segment_bounds
 
-  !> segment_bounds' box for a segment [ra, rb] near the polar axis: all longitudes,
-  !> latitudes from the pole down to the colatitude acos-bound of its farthest
-  !> point from the axis (hb = +huge, out = .true. where that does not apply: the
-  !> ends on both sides of the equator, or a colatitude bound above 0.1 rad).
-  pure subroutine polar_box(dsm, s, l, ra, rb, hlow, hb, out)
+  !> segment_bounds' box for a segment [ra, rb] near the polar axis: latitudes from the pole down
+  !> to the colatitude acos-bound of its farthest point from the axis; longitudes between its ends'
+  !> (lon_a, lon_b) when the segment keeps far enough from the axis (rho, its distance) for their
+  !> rounding to be small, else all (hb = +huge, out = .true. where that does not apply: the ends on
+  !> both sides of the equator, or a colatitude bound above 0.1 rad).
+  pure subroutine polar_box(dsm, s, l, ra, rb, lon_a, lon_b, rho, hlow, hb, out)
     type(dsm_t), intent(in) :: dsm
-    real(dp), intent(in) :: s(3), l(3), ra, rb, hlow
+    real(dp), intent(in) :: s(3), l(3), ra, rb, lon_a, lon_b, rho, hlow
     real(dp), intent(out) :: hb
     logical, intent(out) :: out
     real(dp) :: pa(3), pb(3), rho_max, den, colat, lat_lo, lat_hi, v0, v1, w, lo, f0, f1, h0, h1
+    real(dp) :: dlam, elam, u0, u1
     integer :: i0, i1, j, cw
     hb = huge(1.0_dp)
     out = .true.
@@ -212,6 +218,25 @@ contains
     v1 = (lat_hi - dsm%lat0) / dsm%dlat
     if (v0 > v1) then
       w = v0; v0 = v1; v1 = w
+    end if
+    ! longitude along a line not through the axis is monotone, sweeping the angle between its ends'
+    ! projections (< pi); a point's longitude is atan2(y, x) of coordinates rounded by at most
+    ! ~4.4e-16 (|s| + r (|l| + 1)) each, so by at most that times 2/rho. A drone within ~6 mm of the
+    ! axis over a pole row that varies with longitude ran out of segments with all longitudes
+    ! (a review); a ray exactly on the axis (x = y = 0 at every point) has its ends' longitude.
+    elam = -1.0_dp
+    if (s(1) == 0.0_dp .and. s(2) == 0.0_dp .and. l(1) == 0.0_dp .and. l(2) == 0.0_dp) then
+      elam = 0.0_dp
+    else if (rho > 0.0_dp) then
+      elam = 8.9e-16_dp * (abs(s(1)) + abs(s(2)) + 2.0_dp * max(abs(ra), abs(rb)) * 2.0_dp) / rho + 1.0e-15_dp
+    end if
+    dlam = modulo(lon_b - lon_a + pi, 2.0_dp * pi) - pi
+    if (elam >= 0.0_dp .and. abs(dlam) + elam < 0.25_dp * pi) then
+      w = (modulo(lon_a - dsm%lonc + pi, 2.0_dp * pi) - pi + (dsm%lonc - dsm%lon0)) / dsm%dlon   ! u(lon_a)
+      u0 = w + (min(dlam, 0.0_dp) - elam) / dsm%dlon - 8.0_dp * spacing(pi) / dsm%dlon
+      u1 = w + (max(dlam, 0.0_dp) + elam) / dsm%dlon + 8.0_dp * spacing(pi) / dsm%dlon
+      call dsm_box_bound(dsm, u0 - 1.0e-9_dp, u1 + 1.0e-9_dp, v0, v1, hb, out)
+      return
     end if
     ! the rows the band touches (nodes for bilinear, cells for nearest), every column; the grid
     ! does not hold all longitudes unless global, so the box is then partly outside (out)
@@ -302,6 +327,18 @@ contains
         call next_segment(pa, pb, stack, nst)
         if (nst < 0) exit
         cycle
+      end if
+      if (cell < 0 .and. pb%r - pa%r > refine_tol) then
+        ! ---- the chord rule: a segment that runs along a grid line or the grid's edge within its box's
+        ! margins (rays exactly along a wall, onto an edge at the surface's height: ~100,000 segments of
+        ! refine_tol each and STEP_LIMIT, a review) takes the class its two ends agree on
+        call chord_class(dsm, s, l, pa, pb, hlow, cell, hc)
+        if (cell == chord_outside) then
+          call next_segment(pa, pb, stack, nst)
+          if (nst < 0) exit
+          cycle
+        end if
+        if (cell == chord_cell) hb = hc
       end if
       if (cell >= 0) then                                 ! ---- 3a. one nearest cell: Newton on h - H_cell
         hc = hb
@@ -437,6 +474,86 @@ contains
       res%status = ray_dsm_miss
     end if
   end subroutine exact_ray
+
+  !> The chord rule of exact_ray's first pass (docs/shin-park-notes.md, "Exact mode", the chord rule).
+  !>
+  !> A segment [pa, pb] whose path in grid coordinates (u, v) departs from its chord by at most
+  !> chord_dev cells (second-derivative bounds of latitude and longitude along a line, as in
+  !> pi_dsm_fast) lies, up to that and the rounding of its ends, in any convex region that holds both
+  !> ends: one "nearest" cell, or one half-plane outside the grid's rectangle. Its box (which carries
+  !> the rounding margins, ~1e-12 rad) can touch a neighbouring cell or the grid for its whole length
+  !> when the ray runs along a wall or the edge, and was then subdivided to refine_tol.
+  !>
+  !> Outputs: kind = chord_outside (both ends beyond the same edge: nothing to meet), chord_cell (both
+  !> ends in one nearest cell with data: hc its height), else -1 (no rule: the usual search). An
+  !> excursion of at most chord_dev cells plus rounding off the chord is not an event.
+  pure subroutine chord_class(dsm, s, l, pa, pb, hlow, kind, hc)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3), hlow
+    type(rpt_t), intent(in) :: pa, pb
+    integer, intent(out) :: kind
+    real(dp), intent(out) :: hc
+    real(dp) :: llen, den, rho, kap, lat2, dev_u, dev_v, ub, mdm
+    integer :: fa, fb, ia, ja, ib, jb
+    kind = -1
+    hc = 0.0_dp
+    llen = pb%r - pa%r
+    den = dsm%a * (1.0_dp - dsm%e2) + min(hlow, 0.0_dp)
+    if (.not. (den > 0.5_dp * dsm%a * (1.0_dp - dsm%e2))) return
+    rho = axis_distance(s, l, pa%r, pb%r)
+    if (.not. (rho > 1.0e-3_dp * dsm%a)) return
+    ! |lat''| <= kappa/den + (|dM/dlat|/den + 1)/den^2, kappa = 1/den + 1/rho; |lon''| <= 2/rho^2
+    ! (shin-park-notes, "Fast exact path"); a C2 path departs from its chord by at most max|f''| L^2/8
+    kap = 1.0_dp / den + 1.0_dp / rho
+    mdm = 1.5_dp * dsm%e2 * dsm%a / (1.0_dp - dsm%e2)**1.5_dp
+    lat2 = kap / den + (mdm / den + 1.0_dp) / den**2
+    dev_v = 0.125_dp * lat2 * llen**2 / abs(dsm%dlat)
+    dev_u = 0.25_dp * llen**2 / (rho**2 * dsm%dlon)
+    if (.not. (max(dev_u, dev_v) <= chord_dev)) return
+    ! pb's u on pa's side of the wrap (longitude is continuous along the segment)
+    ub = pa%u + (modulo(pb%lon - pa%lon + pi, 2.0_dp * pi) - pi) / dsm%dlon
+    call point_class(dsm, pa%u, pa%v, fa, ia, ja)
+    call point_class(dsm, ub, pb%v, fb, ib, jb)
+    if (iand(fa, fb) /= 0) then
+      kind = chord_outside
+    else if (fa == 0 .and. fb == 0 .and. ia >= 0 .and. ia == ib .and. ja == jb) then
+      hc = dsm%hgt(ja + 1, ia + 1)
+      if (.not. ieee_is_nan(hc)) kind = chord_cell
+    end if
+  end subroutine chord_class
+
+  !> Where a point (u, v) lies for the chord rule: flags = the edges it is beyond (1, 2: v below,
+  !> above; 4, 8: u below, above; bits of a global grid's u never set), 0 inside the defined area (with
+  !> height_uv's edge slack); i, j its nearest cell (both -1 unless the point lies inside one cell:
+  !> bilinear grids, points on a cell boundary).
+  pure subroutine point_class(dsm, u, v, flags, i, j)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: u, v
+    integer, intent(out) :: flags, i, j
+    real(dp) :: lo, tu, tv
+    flags = 0
+    i = -1
+    j = -1
+    lo = 0.0_dp
+    if (dsm%interp == interp_nearest) lo = 0.5_dp
+    if (v < -lo - dsm%ev) flags = ior(flags, 1)
+    if (v > dsm%nrows - 1 + lo + dsm%ev) flags = ior(flags, 2)
+    if (.not. dsm%global) then
+      if (u < -lo - dsm%eu) flags = ior(flags, 4)
+      if (u > dsm%ncols - 1 + lo + dsm%eu) flags = ior(flags, 8)
+    end if
+    if (flags /= 0 .or. dsm%interp /= interp_nearest) return
+    tv = v + 0.5_dp
+    tu = u + 0.5_dp
+    if (dsm%global) tu = modulo(tu, real(dsm%ncols, dp))
+    tv = min(max(tv, 0.0_dp), real(dsm%nrows, dp))
+    tu = min(max(tu, 0.0_dp), real(dsm%ncols, dp))
+    if (tv == aint(tv) .and. tv > 0.0_dp .and. tv < dsm%nrows) return   ! on a row boundary
+    if (tu == aint(tu) .and. tu > 0.0_dp .and. tu < dsm%ncols) return   ! on a column boundary
+    if (dsm%global .and. tu == 0.0_dp) return                           ! on the seam
+    i = min(int(tv), dsm%nrows - 1)
+    j = min(int(tu), dsm%ncols - 1)
+  end subroutine point_class
 
   !> Move on to the next pending segment [pb, top of the stack]; nst = -1
   !> when none is left.

@@ -62,6 +62,8 @@ module pi_dsm_fast
   real(dp), parameter :: fast_split = 0.35_dp
   !> segment limit per ray and subdivision stack depth
   integer, parameter :: fast_maxseg = 20000, fast_depth = 128
+  !> what a refine_tol leaf counts toward fast_maxseg (so at most ~200 leaves before the decline)
+  integer, parameter :: fast_leaf = 100
   !> outcomes of a piece search
   integer, parameter :: out_clear = 0, out_decided = 1, out_declined = 2
 
@@ -952,6 +954,10 @@ contains
         end if
       end if
       if (pb%r - pa%r <= refine_tol) then                 ! a short segment: classify its end exactly
+        ! a leaf counts as fast_leaf segments: a ray along a wall or the grid's edge within the boxes'
+        ! margins visits leaf after leaf (~10,000 conversions before the decline); exact_ray's chord
+        ! rule settles such rays
+        nseg = nseg + fast_leaf - 1
         call eval_p(dsm, s, l, pc, pb%r, xc, res%nsteps)
         call dsm_height(dsm, xc%lat, xc%lon, hs, code)
         if (code == pt_nodata) then

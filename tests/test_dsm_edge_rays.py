@@ -1,0 +1,214 @@
+"""Rays that run along a grid's edge, a wall or the polar axis, at the surface's height to rounding.
+
+A review (2026-12-02, /docs/shin-park-notes.md "Exact mode", the chord rule) found five such rays
+that the exact mode gave up on (STEP_LIMIT after ~100,000 conversions, 45 ms each): along a
+"nearest" grid's edge, onto a corner, 1e-9 cells outside a bilinear edge, along a global grid's
+seam wall, and a drone on the polar axis over a pole row that varies with longitude. Each scene
+here is built from geometry; each answer is checked against the reviewer's own brute-force
+reference (tests/references/dsm_edge_reference.py: its own conversion and surface) or against a
+closed form, and the number of conversions is bounded (the fault was a storm of 1e-6 m leaves).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import planet_intersect as pi
+from planet_intersect import DSMStatus, GeodeticDSM
+from planet_intersect.geodetic import geodetic_to_ecef
+from references import dsm_edge_reference as ref
+
+MAX_STEPS = 1000      # conversions per ray; the fault took ~100,000
+
+
+def _unit(v):
+    return v / np.linalg.norm(v)
+
+
+def _surface_at(dsm, s, l, r):
+    """(h, H) at s + r l by the package's conversion and lookup."""
+    la, lo, h = pi.ecef_to_geodetic(s + r * l, dsm.a, dsm.f)
+    return float(h), float(dsm.height(la, lo))
+
+
+def test_ray_converging_onto_a_nearest_edge_hits_where_it_enters():
+    """A ray 5 degrees below the horizon runs west-east 8.8e-5 m outside a 1 m "nearest" grid's
+    south edge and reaches the edge below a cell's top: the first entry is a wall hit on the edge.
+    Its box touched the edge row for its last metres (the latitude margin, 1e-12 rad, is 1.3e-5
+    cells), and the search went down to 1e-6 m leaves: STEP_LIMIT."""
+    rng = np.random.default_rng(11)
+    nr, nc = 30, 30
+    h = 5.0 + rng.uniform(0.0, 1.0, (nr, nc))
+    h[10:14, 10:14] = 25.0
+    h[:, -1] = 12.0
+    lat0, lon0, d = 45.0, 7.0, 1e-5
+    dsm = GeodeticDSM.from_array(h, lat0, lon0, -d, d, interpolation="nearest")
+    lat_edge = lat0 - (nr - 0.5) * d                     # the south edge of the last row
+    u_t = 4.49
+    t_h = h[nr - 1, 4] - 0.05                            # below the cell's top at the edge
+    tgt = geodetic_to_ecef(lat_edge, lon0 + u_t * d, t_h)
+    back = 37.0                                           # cells west
+    s = geodetic_to_ecef(lat_edge - 8e-5 * d, lon0 + (u_t - back) * d, t_h + back * 0.79 * np.tan(np.radians(5.0)))
+    l = _unit(tgt - s)
+    res = pi.intersect(dsm, s, l, method="exact")
+    assert res.status[0] == DSMStatus.HIT
+    assert res.nsteps[0] < MAX_STEPS, res.nsteps[0]
+    surf = ref.Surf(h, lat0, lon0, -d, d, "nearest")
+    kind, r_ref, _ = ref.ray_ref(surf, s, l, r0=0.0, r1=np.linalg.norm(tgt - s) + 1.0, ds=0.005)
+    assert kind == "HIT"
+    # which point is the first inside the edge is decided by the last bit of its latitude: one ulp
+    # of latitude (1.1e-16 rad, 0.7 nm) is crossed over 0.7 nm / (the ray's angle to the edge,
+    # 3e-6 rad) ~ 0.2 mm of the ray; the two conversions differ by an ulp or two
+    la_t = np.radians(lat_edge)
+    angle = 8e-5 * d * np.radians(1.0) * 6.37e6 / (back * 0.79)
+    amb = 4 * np.spacing(la_t) * 6.37e6 / angle
+    assert 1e-4 < amb < 2e-3
+    assert abs(res.distance[0] - r_ref) < amb, (res.distance[0] - r_ref, amb)
+    # it is the edge: within a few cm of the target along the ray, over the edge row
+    assert abs(res.distance[0] - np.linalg.norm(tgt - s)) < 0.05
+    # the package's own lookup: inside and below at the hit (points here flicker in and out of
+    # the edge with the last bit of their latitude, so not at every later point)
+    hh, hs = _surface_at(dsm, s, l, res.distance[0])
+    assert hh <= hs
+    r = res.distance[0] + np.linspace(0.0, 2 * amb, 2001)
+    la, lo, hr = pi.ecef_to_geodetic(s[None, :] + r[:, None] * l[None, :], dsm.a, dsm.f)
+    assert np.mean(hr <= dsm.height(la, lo)) > 0.5
+
+
+def test_ray_along_a_global_seam_wall_ends_at_the_walls_cell():
+    """A global "nearest" grid of 15-degree columns; a ray due north in the meridian plane of the
+    seam (between the last and the first column) comes down through the wall's heights. Every
+    point of it is on the wall to rounding; the lookup takes the cell it rounds into, and the hit
+    is where the ray reaches that cell's height (the taller cell's is a rounding's width away
+    across the wall: the reviewer's reference takes it and finds an earlier entry)."""
+    rng = np.random.default_rng(5)
+    nr, nc = 20, 24
+    h = rng.uniform(0.0, 3000.0, (nr, nc))
+    lat0, lon0 = 80.5, 10.0
+    dsm = GeodeticDSM.from_array(h, lat0, lon0, -1.0, 15.0, interpolation="nearest")
+    lon_seam = lon0 + (nc - 0.5) * 15.0 - 360.0          # 2.5 E
+    s = geodetic_to_ecef(70.0, lon_seam, 33_000.0)
+    tgt = geodetic_to_ecef(80.3, lon_seam, 0.0)
+    l = _unit(tgt - s)
+    res = pi.intersect(dsm, s, l, method="exact")
+    assert res.status[0] == DSMStatus.HIT
+    assert res.nsteps[0] < MAX_STEPS, res.nsteps[0]
+    d = res.distance[0]
+    la, lo, hh = pi.ecef_to_geodetic(s + d * l, dsm.a, dsm.f)
+    u = ((lo - lon0) % 360.0) / 15.0
+    assert abs(u - (nc - 0.5)) < 1e-9                   # on the seam wall
+    # a first entry by the package's own lookup: dense samples before it are all above
+    r = np.linspace(0.0, d - 1e-6, 200_001)
+    la, lo, hr = pi.ecef_to_geodetic(s[None, :] + r[:, None] * l[None, :], dsm.a, dsm.f)
+    hs = dsm.height(la, lo)
+    assert np.all(~(hr <= hs))
+    hd, hsd = _surface_at(dsm, s, l, d + 1e-6)
+    assert hd <= hsd
+    # the reviewer's surface (the taller cell on the wall) enters no later
+    surf = ref.Surf(h, lat0, lon0, -1.0, 15.0, "nearest")
+    kind, r_ref, _ = ref.ray_ref(surf, s, l, r0=0.0, r1=d + 10.0, ds=1.0)
+    assert kind == "HIT" and r_ref <= d + 1e-6
+    # the following agrees with the lookup's wall (it samples the same points)
+    fol = pi.intersect(dsm, s, l, method="following")
+    assert fol.status[0] == DSMStatus.HIT and fol.distance[0] >= d - 1e-6
+
+
+def test_ray_along_a_bilinear_edge_just_outside_leaves_at_h_max():
+    """A south-up bilinear grid of 0.5-degree cells; the ray comes down steeply in the meridian
+    plane 1e-9 cells west of its west edge (outside: the edge slack is 4e-13 cells). It never
+    enters; it leaves (is low outside) where it crosses H_max, which a bisection with the
+    reviewer's own conversion finds. STEP_LIMIT before."""
+    rng = np.random.default_rng(3)
+    nr, nc = 30, 30
+    h = 5.0 + rng.uniform(0.0, 20.0, (nr, nc))
+    lat0, lon0, d = 44.9, 7.0, 0.5
+    dsm = GeodeticDSM.from_array(h, lat0, lon0, d, d, interpolation="bilinear")
+    lon_line = lon0 - 1e-9 * d
+    s = geodetic_to_ecef(lat0 + 5.0, lon_line, 174_000.0)
+    tgt = geodetic_to_ecef(lat0 + 10.2, lon_line, 0.0)
+    l = _unit(tgt - s)
+    res = pi.intersect(dsm, s, l, method="exact")
+    assert res.status[0] == DSMStatus.LEFT_DSM
+    assert res.nsteps[0] < MAX_STEPS, res.nsteps[0]
+    # the crossing of H_max by bisection on the reviewer's conversion
+    a_, b_ = 0.0, float(np.linalg.norm(tgt - s))
+    for _ in range(200):
+        m = 0.5 * (a_ + b_)
+        if ref.ecef2geo(s + m * l)[2][0] > dsm.hmax:
+            a_ = m
+        else:
+            b_ = m
+    assert abs(res.event_distance[0] - b_) < 1e-6, res.event_distance[0] - b_
+    surf = ref.Surf(h, lat0, lon0, d, d, "bilinear")
+    la, lo, _ = ref.ecef2geo(s + b_ * l)
+    assert ref.Surf.height(surf, np.degrees(la), np.degrees(lo))[1][0] == 1     # outside
+
+
+def test_ray_along_an_edge_onto_a_corner_leaves_past_the_corner():
+    """A "nearest" grid of 0.5-degree cells; a ray runs along its north edge (a parallel, to
+    rounding, for ~100 m around the corner: the target is the NW corner itself at the corner
+    cell's height) and leaves past the corner. STEP_LIMIT before (the LEFT_DSM pass's rule for
+    edge-running segments took the wrong latitude margin on north-up grids, note "Exact mode")."""
+    rng = np.random.default_rng(8)
+    nr, nc = 30, 30
+    h = 5.0 + rng.uniform(0.0, 20.0, (nr, nc))
+    h[0, 0] = 10.0
+    lat0, lon0, d = 45.0, 7.0, 0.5
+    dsm = GeodeticDSM.from_array(h, lat0, lon0, -d, d, interpolation="nearest")
+    corner = geodetic_to_ecef(lat0 + 0.5 * d, lon0 - 0.5 * d, 10.0)
+    up = _unit(corner * np.array([1, 1, 1 / (1 - dsm.f) ** 2]))
+    east = _unit(np.cross([0.0, 0.0, 1.0], up))
+    north = np.cross(up, east)
+    # from the east along the edge's tangent, 31.5 degrees down
+    look = _unit(-np.cos(np.radians(31.5)) * east - np.sin(np.radians(31.5)) * up)
+    s = corner - 200_000.0 * look
+    res = pi.intersect(dsm, s, look, method="exact")
+    assert res.nsteps[0] < MAX_STEPS, res.nsteps[0]
+    surf = ref.Surf(h, lat0, lon0, -d, d, "nearest")
+    kind, r_ref, first_out = ref.ray_ref(surf, s, look, r0=199_000.0, r1=201_000.0, ds=0.5)
+    # the tangent line leaves the parallel: it is outside the north edge long before the corner
+    # (a tangent plane's line drops away from the curved edge), so both say LEFT_DSM; where it
+    # first goes low outside is a crossing of a curved edge, no rounding question
+    assert kind == "LEFT_DSM" and res.status[0] == DSMStatus.LEFT_DSM
+    assert abs(res.event_distance[0] - first_out) < 1.0    # the reference's step is 0.5 m
+    del north
+
+
+@pytest.mark.parametrize("row0_varies", [False, True])
+@pytest.mark.parametrize("off", [0.0, 1e-3, 5e-3, 1e-2])
+def test_drone_on_the_polar_axis_over_a_pole_row(row0_varies, off):
+    """A global bilinear grid whose first row is the north pole (dlat = -0.001 deg, 360 columns);
+    a drone 50 m over the pole looks straight down, on the axis or up to 1 cm off it. Along the
+    ray x and y are constant, so its longitude is one value and the surface along it is the
+    bilinear between row 0 and row 1 at that longitude: the hit is where 50 - r (+ the ellipsoid's
+    curvature, < 1e-9 m here) meets it. With a pole row that varies with longitude, the polar box
+    took all longitudes and the search never ruled a segment out (STEP_LIMIT) within ~6 mm."""
+    rng = np.random.default_rng(0)
+    h = 5.0 + rng.uniform(0.0, 3.0, (20, 360))
+    h[3, ::7] = 40.0
+    if not row0_varies:
+        h[0, :] = 6.0
+    dsm = GeodeticDSM.from_array(h, 90.0, -180.0, -0.001, 1.0, interpolation="bilinear")
+    b = dsm.a * (1.0 - dsm.f)
+    s = np.array([off, 0.0, b + 50.0])
+    l = np.array([0.0, 0.0, -1.0])
+    res = pi.intersect(dsm, s, l, method="exact")
+    assert res.status[0] == DSMStatus.HIT
+    assert res.nsteps[0] < MAX_STEPS, res.nsteps[0]
+    # closed form: lon = 0 (x >= 0, y = 0: column 180), colatitude ~ off / b, so v = colat / 0.001 deg
+    surf = ref.Surf(h, 90.0, -180.0, -0.001, 1.0, "bilinear")
+    a_, b_ = 0.0, 50.0
+    for _ in range(200):
+        m = 0.5 * (a_ + b_)
+        la, lo, hh = ref.ecef2geo(s + m * l)
+        H, code = surf.height(np.degrees(la), np.degrees(lo))
+        if code[0] == 0 and hh[0] <= H[0]:
+            b_ = m
+        else:
+            a_ = m
+    assert abs(res.distance[0] - b_) < 1e-6, res.distance[0] - b_
+    colat = off / b
+    fv = np.degrees(colat) / 0.001
+    expect_H = (1 - fv) * h[0, 180] + fv * h[1, 180]
+    assert abs((50.0 - res.distance[0]) - expect_H) < 1e-5
