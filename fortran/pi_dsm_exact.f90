@@ -56,7 +56,7 @@ module pi_dsm_exact
   !> chord_class: the kinds it returns, and the largest departure of a segment's path from its chord
   !> in grid coordinates (cells) for which it applies
   integer, parameter :: chord_outside = -2, chord_cell = 1
-  real(dp), parameter :: chord_dev = 1.0e-7_dp
+  real(dp), parameter :: chord_tol = 2.5e-16_dp
 
   !> a point of the ray with what the bounds need
   type :: rpt_t
@@ -392,7 +392,10 @@ contains
       end if
       ! split just before (or, from the boundary, just after) a wall crossing, else at the middle
       rm = 0.5_dp * (pa%r + pb%r)
-      if (rsplit > 0.0_dp) then
+      ! (not where the estimate falls within 2 % of an end: a ray within the box margins of a wall
+      ! then had each split cut 1e-7 m off the segment's end and ran out of stack, STEP_LIMIT after
+      ! ~170 conversions, a review)
+      if (rsplit > 0.0_dp .and. abs(rsplit - rm) < 0.48_dp * (pb%r - pa%r)) then
         if (rsplit - 0.25_dp * refine_tol > pa%r + 0.125_dp * refine_tol) then
           rm = rsplit - 0.25_dp * refine_tol
         else if (rsplit + 0.25_dp * refine_tol < pb%r - 0.125_dp * refine_tol) then
@@ -475,26 +478,29 @@ contains
     end if
   end subroutine exact_ray
 
-  !> The chord rule of exact_ray's first pass (docs/shin-park-notes.md, "Exact mode", the chord rule).
+  !> The chord rule of exact_ray's first pass (docs/shin-park-notes.md, "Exact mode", 3a).
   !>
-  !> A segment [pa, pb] whose path in grid coordinates (u, v) departs from its chord by at most
-  !> chord_dev cells (second-derivative bounds of latitude and longitude along a line, as in
-  !> pi_dsm_fast) lies, up to that and the rounding of its ends, in any convex region that holds both
-  !> ends: one "nearest" cell, or one half-plane outside the grid's rectangle. Its box (which carries
-  !> the rounding margins, ~1e-12 rad) can touch a neighbouring cell or the grid for its whole length
-  !> when the ray runs along a wall or the edge, and was then subdivided to refine_tol.
+  !> A segment's path in grid coordinates departs from its chord (between its ends' u, v) by at
+  !> most dev_u, dev_v cells: |lat''| L^2/8 and |lon''| L^2/8, with |lat''| <= kappa/den +
+  !> (|dM/dlat|/den + 1)/den^2 (pi_dsm_fast) and |lon''| = 2 |C| |rho'| / rho^3 <= 2 |C| / rho^3,
+  !> C = s_x l_y - s_y l_x (lon' = C / rho^2 along a line; C = 0 in a meridian plane). The chord
+  !> lies in any convex region holding both ends: one "nearest" cell, or the half-plane beyond one
+  !> of the grid's edges. The path lies there too when, in each direction that matters, it keeps
+  !> farther from the region's boundary than its departure, or when its departure is at most
+  !> chord_tol (1e-15 rad, below the lookup's own edge slack of 8 ulp(pi), 3.5e-15 rad).
   !>
-  !> Outputs: kind = chord_outside (both ends beyond the same edge: nothing to meet), chord_cell (both
-  !> ends in one nearest cell with data: hc its height), else -1 (no rule: the usual search). An
-  !> excursion of at most chord_dev cells plus rounding off the chord is not an event.
+  !> Outputs: kind = chord_outside (beyond one edge: nothing to meet), chord_cell (in one nearest
+  !> cell with data: hc its height), else -1 (no rule: the usual search).
   pure subroutine chord_class(dsm, s, l, pa, pb, hlow, kind, hc)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: s(3), l(3), hlow
     type(rpt_t), intent(in) :: pa, pb
     integer, intent(out) :: kind
     real(dp), intent(out) :: hc
-    real(dp) :: llen, den, rho, kap, lat2, dev_u, dev_v, ub, mdm
-    integer :: fa, fb, ia, ja, ib, jb
+    real(dp) :: llen, den, rho, kap, lat2, dlat_r, dlon_r, dev_u, dev_v, ub, mdm, cmom, lo
+    real(dp) :: ev, eu, gap
+    integer :: fa, fb, ia, ja, ib, jb, common
+    logical :: tight_u, tight_v
     kind = -1
     hc = 0.0_dp
     llen = pb%r - pa%r
@@ -502,24 +508,62 @@ contains
     if (.not. (den > 0.5_dp * dsm%a * (1.0_dp - dsm%e2))) return
     rho = axis_distance(s, l, pa%r, pb%r)
     if (.not. (rho > 1.0e-3_dp * dsm%a)) return
-    ! |lat''| <= kappa/den + (|dM/dlat|/den + 1)/den^2, kappa = 1/den + 1/rho; |lon''| <= 2/rho^2
-    ! (shin-park-notes, "Fast exact path"); a C2 path departs from its chord by at most max|f''| L^2/8
     kap = 1.0_dp / den + 1.0_dp / rho
     mdm = 1.5_dp * dsm%e2 * dsm%a / (1.0_dp - dsm%e2)**1.5_dp
     lat2 = kap / den + (mdm / den + 1.0_dp) / den**2
-    dev_v = 0.125_dp * lat2 * llen**2 / abs(dsm%dlat)
-    dev_u = 0.25_dp * llen**2 / (rho**2 * dsm%dlon)
-    if (.not. (max(dev_u, dev_v) <= chord_dev)) return
+    cmom = abs(s(1) * l(2) - s(2) * l(1))
+    dlat_r = 0.125_dp * lat2 * llen**2                    ! radians
+    dlon_r = 0.25_dp * cmom * llen**2 / rho**3
+    tight_v = dlat_r <= chord_tol
+    tight_u = dlon_r <= chord_tol
+    dev_v = dlat_r / abs(dsm%dlat) + 1.0e-15_dp          ! cells (+ the ends' rounding)
+    dev_u = dlon_r / dsm%dlon + 1.0e-15_dp
+    if (.not. (dev_u < 0.25_dp .and. dev_v < 0.25_dp)) return
     ! pb's u on pa's side of the wrap (longitude is continuous along the segment)
     ub = pa%u + (modulo(pb%lon - pa%lon + pi, 2.0_dp * pi) - pi) / dsm%dlon
     call point_class(dsm, pa%u, pa%v, fa, ia, ja)
     call point_class(dsm, ub, pb%v, fb, ib, jb)
-    if (iand(fa, fb) /= 0) then
-      kind = chord_outside
+    common = iand(fa, fb)
+    if (common /= 0) then
+      lo = 0.0_dp
+      if (dsm%interp == interp_nearest) lo = 0.5_dp
+      ev = dsm%ev
+      eu = dsm%eu
+      ! beyond the edge by more than the departure (or the departure below chord_tol)
+      if (iand(common, 1) /= 0) then
+        gap = (-lo - ev) - max(pa%v, pb%v)
+        if (tight_v .or. gap > dev_v) kind = chord_outside
+      end if
+      if (iand(common, 2) /= 0) then
+        gap = min(pa%v, pb%v) - (dsm%nrows - 1 + lo + ev)
+        if (tight_v .or. gap > dev_v) kind = chord_outside
+      end if
+      if (iand(common, 4) /= 0) then
+        gap = (-lo - eu) - max(pa%u, ub)
+        if (tight_u .or. gap > dev_u) kind = chord_outside
+      end if
+      if (iand(common, 8) /= 0) then
+        gap = min(pa%u, ub) - (dsm%ncols - 1 + lo + eu)
+        if (tight_u .or. gap > dev_u) kind = chord_outside
+      end if
     else if (fa == 0 .and. fb == 0 .and. ia >= 0 .and. ia == ib .and. ja == jb) then
+      ! inside the cell by more than the departure, across rows and across columns
+      if (.not. (tight_v .or. min(cell_gap(pa%v), cell_gap(pb%v)) > dev_v)) return
+      if (.not. (tight_u .or. min(cell_gap(pa%u), cell_gap(ub)) > dev_u)) return
       hc = dsm%hgt(ja + 1, ia + 1)
       if (.not. ieee_is_nan(hc)) kind = chord_cell
     end if
+
+  contains
+
+    !> distance (cells) from x to the nearest boundary of its "nearest" cell (boundaries at k + 1/2)
+    pure function cell_gap(x) result(g)
+      real(dp), intent(in) :: x
+      real(dp) :: g, f
+      f = (x + 0.5_dp) - floor(x + 0.5_dp)
+      g = min(f, 1.0_dp - f)
+    end function cell_gap
+
   end subroutine chord_class
 
   !> Where a point (u, v) lies for the chord rule: flags = the edges it is beyond (1, 2: v below,

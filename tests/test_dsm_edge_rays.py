@@ -212,3 +212,56 @@ def test_drone_on_the_polar_axis_over_a_pole_row(row0_varies, off):
     fv = np.degrees(colat) / 0.001
     expect_H = (1 - fv) * h[0, 180] + fv * h[1, 180]
     assert abs((50.0 - res.distance[0]) - expect_H) < 1e-5
+
+
+def _tangent_ray(lat, lon, h, tilt, back):
+    """A ray through the point (lat, lon, h) heading due east, tilted `tilt` rad above the horizontal
+    there (a plane-parallel direction: the line's latitude is poleward-most at that point), and its
+    start `back` m before it."""
+    p0 = geodetic_to_ecef(lat, lon, h)
+    lam, phi = np.radians(lon), np.radians(lat)
+    east = np.array([-np.sin(lam), np.cos(lam), 0.0])
+    up = np.array([np.cos(phi) * np.cos(lam), np.cos(phi) * np.sin(lam), np.sin(phi)])
+    l = np.cos(tilt) * east + np.sin(tilt) * up
+    return p0 - back * l, l
+
+
+@pytest.mark.parametrize("interp, cell, lat_b, dg", [
+    ("bilinear", 15.0, 45.0, 4e-3),        # 4 mm into a bilinear grid across its south edge
+    ("nearest", 15.0, -30.0, 8e-4),        # 0.8 mm across a wall into the taller cells
+    ("nearest", 0.01, -30.0, 1e-6),        # 1 um across a wall of 0.01-degree cells
+])
+def test_a_ray_that_bows_across_an_edge_or_a_wall_hits(interp, cell, lat_b, dg):
+    """A near-horizontal ray tangent to a parallel bows poleward by dg metres of ground across the
+    grid's edge or a wall at lat_b and back, 500 m below the surface there. A second adversarial
+    review of the chord rule (3a) found the first version wrong on these: it let an excursion of
+    1e-7 cells (17 cm on 15-degree cells) count as none, and these rays were LEFT_DSM or MISS; the
+    previous build gave STEP_LIMIT, and on the 0.01-degree wall STEP_LIMIT after ~170 conversions
+    (the wall split cut 1e-7 m off a segment's end each time). Against the first reviewer's
+    brute-force reference: a hit, at most ~5 mm early (one ulp of latitude is crossed over mm of
+    such a grazing ray)."""
+    pole = np.sign(lat_b)
+    if interp == "bilinear":
+        h = np.full((3, 3), 1000.0)
+        h[2, 2] = 0.0                                   # H_min = 0 far away (note 15 must not stop it)
+        lat0, dlat, lon0 = lat_b, cell, 0.0
+        lon_t = 15.0
+    else:
+        lat0, dlat, lon0 = lat_b + 1.5 * cell, -cell, 10.0   # north-up: rows 1 | 2 meet at lat_b
+        h = np.zeros((4, 4))
+        h[2:] = 1000.0                                  # rows 2, 3 are south of lat_b (poleward here)
+        lon_t = lon0 + 1.5 * cell
+    dsm = GeodeticDSM.from_array(h, lat0, lon0, dlat, cell, interpolation=interp)
+    lat_t = lat_b + pole * dg / 111_000.0 if interp == "nearest" else lat_b + dg / 111_000.0
+    back = 0.6 * cell * 111_000.0 * np.cos(np.radians(lat_b)) if cell > 1 else 3000.0
+    s, l = _tangent_ray(lat_t, lon_t, 500.0, 0.0, back)
+    res = pi.intersect(dsm, s, l, method="exact")
+    assert res.status[0] == DSMStatus.HIT, (res.status[0], res.nsteps[0])
+    assert res.nsteps[0] < MAX_STEPS, res.nsteps[0]
+    surf = ref.Surf(h, lat0, lon0, dlat, cell, interp)
+    win = min(20_000.0, back)
+    kind, r_ref, _ = ref.ray_ref(surf, s, l, r0=back - win, r1=back + win, ds=win / 20_000.0)
+    assert kind == "HIT"
+    assert -5e-3 < res.distance[0] - r_ref < 1e-6, res.distance[0] - r_ref
+    hh, hs = _surface_at(dsm, s, l, res.distance[0])
+    assert hh <= hs

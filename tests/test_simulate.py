@@ -90,14 +90,26 @@ def box():
     return dsm, ortho, scene, sensor
 
 
+@pytest.mark.filterwarnings("ignore:.*where the ortho-image has no value")
 def test_blocks_threads_and_memmap_give_identical_results(box, tmp_path):
     dsm, ortho, scene, sensor = box
     a = pi.simulate_image(dsm, ortho, sensor, threads=1, block_lines=1000)
     b = pi.simulate_image(dsm, ortho, sensor, threads=2, block_lines=7, out=tmp_path / "maps")
     for name in ("image", "valid", "lat", "lon", "height", "distance", "incidence", "local_incidence", "surface",
-                 "status", "p", "occlusion", "footprint"):
+                 "status", "p", "occlusion", "footprint", "ortho_value"):
         np.testing.assert_array_equal(getattr(a, name), np.asarray(getattr(b, name)), err_msg=name)
     assert isinstance(b.lat, np.memmap) and (tmp_path / "maps" / "lat.npy").is_file()
+    # the memory-mapped files are not pre-filled: pixels whose rays leave the DSM must still get the
+    # fill, NaN and -1 entries (a sensor wider than the scene)
+    s0, l0 = oblique_pushbroom(scene, zenith=9.0, azimuth=90.0, margin=0)
+    lc = l0[:, l0.shape[1] // 2][:, None, :]
+    wide = pi.Pushbroom(s0, lc + 1.5 * (l0 - lc))          # each line aimed 25 % beyond both sides
+    c = pi.simulate_image(dsm, ortho, wide, threads=1, block_lines=1000, occlusion=False)
+    d = pi.simulate_image(dsm, ortho, wide, threads=1, block_lines=7, occlusion=False, out=tmp_path / "wide")
+    assert (~c.valid).sum() > 0.2 * c.valid.size
+    for name in ("image", "valid", "lat", "lon", "height", "distance", "incidence", "local_incidence",
+                 "surface", "status", "p", "ortho_value"):
+        np.testing.assert_array_equal(getattr(c, name), np.asarray(getattr(d, name)), err_msg=name)
     with pytest.raises(FileExistsError, match="maps"):
         pi.simulate_image(dsm, ortho, sensor, out=tmp_path / "maps")
 
