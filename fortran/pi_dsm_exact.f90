@@ -55,7 +55,7 @@ module pi_dsm_exact
   integer, parameter :: exact_maxseg = 200000, exact_depth = 128
   !> chord_class: the kinds it returns, and the largest departure of a segment's path from its chord
   !> in grid coordinates (cells) for which it applies
-  integer, parameter :: chord_outside = -2, chord_cell = 1
+  integer, parameter :: chord_outside = -2, chord_cell = 1, chord_bound = 2, chord_nodata = 3
   real(dp), parameter :: chord_tol = 2.5e-16_dp
 
   !> a point of the ray with what the bounds need
@@ -338,6 +338,19 @@ contains
           if (nst < 0) exit
           cycle
         end if
+        if (cell == chord_nodata) then                   ! low, and in one no-data cell from its start
+          call set_event(dsm, s, l, pa%r, ray_no_data, res)
+          return
+        end if
+        if (cell == chord_bound) then                    ! in one bilinear cell: its bound there
+          cell = -1
+          hb = hc
+          if (hlow > hb) then
+            call next_segment(pa, pb, stack, nst)
+            if (nst < 0) exit
+            cycle
+          end if
+        end if
         if (cell == chord_cell) hb = hc
       end if
       if (cell >= 0) then                                 ! ---- 3a. one nearest cell: Newton on h - H_cell
@@ -490,7 +503,12 @@ contains
   !> chord_tol (1e-15 rad, below the lookup's own edge slack of 8 ulp(pi), 3.5e-15 rad).
   !>
   !> Outputs: kind = chord_outside (beyond one edge: nothing to meet), chord_cell (in one nearest
-  !> cell with data: hc its height), else -1 (no rule: the usual search).
+  !> cell with data: hc its height), chord_bound (bilinear: hc the bound of the surface over the
+  !> path's own box, the chord's widened by the departure and rounding), chord_nodata (the path in
+  !> one cell without data), else -1 (no rule: the usual search). (The segment's own box carries
+  !> 1e-12 rad margins: one that took in a no-data neighbour only through them had no bound, and a
+  !> ray near a corner node beside a no-data node took 65,828 conversions, a review.) The
+  !> departure-below-chord_tol shortcut never applies to a cell without data or to bilinear cells.
   pure subroutine chord_class(dsm, s, l, pa, pb, hlow, kind, hc)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: s(3), l(3), hlow
@@ -499,6 +517,7 @@ contains
     real(dp), intent(out) :: hc
     real(dp) :: llen, den, rho, kap, lat2, dlat_r, dlon_r, dev_u, dev_v, ub, mdm, cmom, lo
     real(dp) :: ev, eu, gap
+    logical :: out
     integer :: fa, fb, ia, ja, ib, jb, common
     logical :: tight_u, tight_v
     kind = -1
@@ -516,14 +535,33 @@ contains
     dlon_r = 0.25_dp * cmom * llen**2 / rho**3
     tight_v = dlat_r <= chord_tol
     tight_u = dlon_r <= chord_tol
-    dev_v = dlat_r / abs(dsm%dlat) + 1.0e-15_dp          ! cells (+ the ends' rounding)
-    dev_u = dlon_r / dsm%dlon + 1.0e-15_dp
+    ! in cells, with the rounding of the ends' and any point's computed latitude and longitude
+    ! (1e-14 rad, as the fast path allows)
+    dev_v = (dlat_r + 1.0e-14_dp) / abs(dsm%dlat)
+    dev_u = (dlon_r + 1.0e-14_dp) / dsm%dlon
     if (.not. (dev_u < 0.25_dp .and. dev_v < 0.25_dp)) return
     ! pb's u on pa's side of the wrap (longitude is continuous along the segment)
     ub = pa%u + (modulo(pb%lon - pa%lon + pi, 2.0_dp * pi) - pi) / dsm%dlon
     call point_class(dsm, pa%u, pa%v, fa, ia, ja)
     call point_class(dsm, ub, pb%v, fb, ib, jb)
     common = iand(fa, fb)
+    if (dsm%interp /= interp_nearest .and. common == 0) then
+      ! bilinear: the surface is continuous across cells, so the bound over the path's own box (the
+      ! chord's, widened by the departure and rounding) is all that is needed; a box that takes in
+      ! a cell without data (+huge) gets no rule. Both ends in one cell without data, the path
+      ! inside it: a no-data point from the start.
+      if (ia >= 0 .and. ia == ib .and. ja == jb) then
+        if (any(ieee_is_nan(dsm%hgt(ja + 1:ja + 2, ia + 1:ia + 2))) .and. &
+            min(cell_gap(pa%v), cell_gap(pb%v)) > dev_v .and. min(cell_gap(pa%u), cell_gap(ub)) > dev_u) then
+          kind = chord_nodata
+          return
+        end if
+      end if
+      call dsm_box_bound(dsm, min(pa%u, ub) - dev_u, max(pa%u, ub) + dev_u, &
+                         min(pa%v, pb%v) - dev_v, max(pa%v, pb%v) + dev_v, hc, out)
+      if (hc < huge(1.0_dp)) kind = chord_bound
+      return
+    end if
     if (common /= 0) then
       lo = 0.0_dp
       if (dsm%interp == interp_nearest) lo = 0.5_dp
@@ -547,20 +585,26 @@ contains
         if (tight_u .or. gap > dev_u) kind = chord_outside
       end if
     else if (fa == 0 .and. fb == 0 .and. ia >= 0 .and. ia == ib .and. ja == jb) then
-      ! inside the cell by more than the departure, across rows and across columns
-      if (.not. (tight_v .or. min(cell_gap(pa%v), cell_gap(pb%v)) > dev_v)) return
-      if (.not. (tight_u .or. min(cell_gap(pa%u), cell_gap(ub)) > dev_u)) return
+      ! inside the cell by more than the departure, across rows and across columns (boundaries at
+      ! k + 1/2); a cell without data: a no-data point from the start only if the path is in it
+      if (.not. (tight_v .or. min(cell_gap(pa%v + 0.5_dp), cell_gap(pb%v + 0.5_dp)) > dev_v)) return
+      if (.not. (tight_u .or. min(cell_gap(pa%u + 0.5_dp), cell_gap(ub + 0.5_dp)) > dev_u)) return
       hc = dsm%hgt(ja + 1, ia + 1)
-      if (.not. ieee_is_nan(hc)) kind = chord_cell
+      kind = chord_cell
+      if (ieee_is_nan(hc)) then
+        kind = -1
+        if (min(cell_gap(pa%v + 0.5_dp), cell_gap(pb%v + 0.5_dp)) > dev_v .and. &
+            min(cell_gap(pa%u + 0.5_dp), cell_gap(ub + 0.5_dp)) > dev_u) kind = chord_nodata
+      end if
     end if
 
   contains
 
-    !> distance (cells) from x to the nearest boundary of its "nearest" cell (boundaries at k + 1/2)
+    !> distance from x to the nearest integer (the caller shifts nearest cells' boundaries there)
     pure function cell_gap(x) result(g)
       real(dp), intent(in) :: x
       real(dp) :: g, f
-      f = (x + 0.5_dp) - floor(x + 0.5_dp)
+      f = x - floor(x)
       g = min(f, 1.0_dp - f)
     end function cell_gap
 
@@ -568,8 +612,8 @@ contains
 
   !> Where a point (u, v) lies for the chord rule: flags = the edges it is beyond (1, 2: v below,
   !> above; 4, 8: u below, above; bits of a global grid's u never set), 0 inside the defined area (with
-  !> height_uv's edge slack); i, j its nearest cell (both -1 unless the point lies inside one cell:
-  !> bilinear grids, points on a cell boundary).
+  !> height_uv's edge slack); i, j its cell as height_uv takes it (the nearest cell; the bilinear cell
+  !> between nodes i, i + 1 and j, j + 1), both -1 on a cell boundary inside the grid or outside.
   pure subroutine point_class(dsm, u, v, flags, i, j)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: u, v
@@ -586,7 +630,14 @@ contains
       if (u < -lo - dsm%eu) flags = ior(flags, 4)
       if (u > dsm%ncols - 1 + lo + dsm%eu) flags = ior(flags, 8)
     end if
-    if (flags /= 0 .or. dsm%interp /= interp_nearest) return
+    if (flags /= 0) return
+    if (dsm%interp /= interp_nearest) then
+      if (v == aint(v) .and. v > 0.0_dp .and. v < dsm%nrows - 1) return   ! on a node row
+      if (u == aint(u) .and. u > 0.0_dp .and. u < dsm%ncols - 1) return   ! on a node column
+      i = min(int(max(v, 0.0_dp)), dsm%nrows - 2)
+      j = min(int(max(u, 0.0_dp)), dsm%ncols - 2)
+      return
+    end if
     tv = v + 0.5_dp
     tu = u + 0.5_dp
     if (dsm%global) tu = modulo(tu, real(dsm%ncols, dp))

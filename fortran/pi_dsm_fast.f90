@@ -64,6 +64,9 @@ module pi_dsm_fast
   integer, parameter :: fast_maxseg = 20000, fast_depth = 128
   !> what a refine_tol leaf counts toward fast_maxseg (so at most ~200 leaves before the decline)
   integer, parameter :: fast_leaf = 100
+  !> conversions after which the fast path declines: rays aimed within ~1e-8 deg of a cell corner
+  !> took 3,800-6,300 here where exact_ray needs 19-43 (a review); a benchmark ray takes ~6
+  integer, parameter :: fast_maxconv = 1000
   !> outcomes of a piece search
   integer, parameter :: out_clear = 0, out_decided = 1, out_declined = 2
 
@@ -843,7 +846,7 @@ contains
     nst = 0
     do
       nseg = nseg + 1
-      if (nseg > fast_maxseg) then
+      if (nseg > fast_maxseg .or. res%nsteps > fast_maxconv) then
         outcome = out_declined
         return
       end if

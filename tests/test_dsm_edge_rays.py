@@ -265,3 +265,39 @@ def test_a_ray_that_bows_across_an_edge_or_a_wall_hits(interp, cell, lat_b, dg):
     assert -5e-3 < res.distance[0] - r_ref < 1e-6, res.distance[0] - r_ref
     hh, hs = _surface_at(dsm, s, l, res.distance[0])
     assert hh <= hs
+
+
+@pytest.mark.parametrize("case", ["bilinear corner beside no-data", "nearest corner"])
+def test_rays_aimed_at_a_cell_corner_are_not_slow(case):
+    """Two rays from the sixth review, aimed within ~1e-8 to 7e-7 degrees of a cell corner (the
+    first next to a node without data). Their answers were right but took 69,629 and 6,273
+    conversions (55 ms): boxes that take in the no-data neighbour only through their margins had
+    no bound (now: the chord rule's own box for bilinear segments, 65,828 -> 329 conversions in
+    exact_ray), and the fast path searched on (now it hands a ray to exact_ray after 1,000
+    conversions: 1,330 and 1,020 in all). Same answers
+    as the review's brute-force search: NO_DATA 2.9e-6 m before its 0.05 m-step point, a hit to
+    1e-9 m."""
+    if case.startswith("bilinear"):
+        h = np.array([[50.0, 0.0, 2000.0, 50.0, 300.0, 300.0], [0.0, 300.0, 50.0, 2000.0, 0.0, 2000.0],
+                      [50.0, 0.0, np.nan, 2000.0, 50.0, 0.0]])
+        grid = (60.0, 40.0, 15.0, 15.0, "bilinear")
+        s = np.array([561601.6929428547, 1558609.0371826028, 6141488.694973352])
+        l = np.array([0.8715628092264159, -0.39861789255534963, -0.28545060046895987])
+        want, name, r_rev = DSMStatus.NO_DATA, "NO_DATA", 5057.227094640674
+    else:
+        h = np.array([[0.0, 300.0, 2000.0, 50.0, 0.0, 2000.0], [2000.0, 50.0, 50.0, 2000.0, 2000.0, 50.0],
+                      [50.0, 50.0, 50.0, 300.0, 50.0, 2000.0], [0.0, 2000.0, 50.0, 300.0, 0.0, 2000.0],
+                      [2000.0, 300.0, 50.0, 2000.0, 300.0, 0.0], [2000.0, 0.0, 0.0, 300.0, 300.0, 0.0]])
+        grid = (62.5, 40.0, -0.5, 0.5, "nearest")
+        s = np.array([2293320.702906859, 2124204.770375743, 5544434.371655108])
+        l = np.array([0.5424488229857848, -0.7995421849729115, -0.2578402002987104])
+        want, name, r_rev = DSMStatus.HIT, "HIT", 10289.89732380414
+    dsm = GeodeticDSM.from_array(h, *grid[:4], interpolation=grid[4])
+    res = pi.intersect(dsm, s, l, method="exact")
+    assert res.status[0] == want
+    assert res.nsteps[0] < 2000, res.nsteps[0]
+    r = res.distance[0] if want == DSMStatus.HIT else res.event_distance[0]
+    surf = ref.Surf(h, *grid)
+    kind, r_ref, _ = ref.ray_ref(surf, s, _unit(l), r0=r_rev - 5.0, r1=r_rev + 5.0, ds=1e-3)
+    assert kind == name
+    assert abs(r - r_ref) < 1e-5, r - r_ref
