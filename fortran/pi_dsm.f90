@@ -24,7 +24,7 @@ module pi_dsm
   implicit none
   private
 
-  public :: dsm_t, dsm_attach, dsm_height, dsm_grid_uv, dsm_box_bound, dsm_cell_metres, range_max
+  public :: dsm_t, dsm_attach, dsm_height, dsm_grid_uv, dsm_cells, dsm_box_bound, dsm_cell_metres, range_max
   public :: interp_bilinear, interp_nearest, pt_ok, pt_outside, pt_nodata
 
   !> interpolation codes
@@ -119,6 +119,47 @@ contains
     call height_uv(dsm, u, v, hs, code)
   end subroutine dsm_height
 
+  !> The cells whose heights decide the surface at grid coordinates (u, v): rows i0..i1, columns
+  !> j0..j1 (0-based). Bilinear: the cell between nodes i, i + 1 and j, j + 1 that the interpolation
+  !> uses (one). Nearest: the cell holding the point, and on a cell boundary both neighbours (walls
+  !> are solid: the larger height); j0 = -1 on a global grid's seam (column ncols - 1 with column 0).
+  !> ok = .false. outside the defined area (with the edge slack eu, ev).
+  pure subroutine dsm_cells(dsm, u, v, i0, i1, j0, j1, ok)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: u, v
+    integer, intent(out) :: i0, i1, j0, j1
+    logical, intent(out) :: ok
+    real(dp) :: tu, tv, eu, ev
+    eu = dsm%eu
+    ev = dsm%ev
+    i0 = 0; i1 = 0; j0 = 0; j1 = 0
+    if (dsm%interp == interp_bilinear) then
+      ok = v >= -ev .and. v <= dsm%nrows - 1 + ev .and. u >= -eu .and. u <= dsm%ncols - 1 + eu
+      if (.not. ok) return
+      i0 = min(int(max(v, 0.0_dp)), dsm%nrows - 2)
+      j0 = min(int(max(u, 0.0_dp)), dsm%ncols - 2)
+      i1 = i0
+      j1 = j0
+      return
+    end if
+    tv = v + 0.5_dp
+    tu = u + 0.5_dp
+    if (dsm%global) tu = modulo(tu, real(dsm%ncols, dp))
+    ok = tv >= -ev .and. tv <= dsm%nrows + ev .and. tu >= -eu .and. tu <= dsm%ncols + eu
+    if (.not. ok) return
+    tv = min(max(tv, 0.0_dp), real(dsm%nrows, dp))
+    tu = min(max(tu, 0.0_dp), real(dsm%ncols, dp))
+    i1 = min(int(tv), dsm%nrows - 1)
+    i0 = i1
+    if (real(i1, dp) == tv .and. i1 >= 1) i0 = i1 - 1          ! on a row boundary: both cells
+    if (int(tv) == dsm%nrows) i0 = dsm%nrows - 1
+    j1 = min(int(tu), dsm%ncols - 1)
+    j0 = j1
+    if (real(j1, dp) == tu .and. j1 >= 1) j0 = j1 - 1
+    if (int(tu) == dsm%ncols) j0 = dsm%ncols - 1
+    if (dsm%global .and. j0 == j1 .and. j0 == 0 .and. tu == 0.0_dp) j0 = -1   ! seam: cell ncols-1 too
+  end subroutine dsm_cells
+
   !> dsm_height at grid coordinates (u, v).
   pure subroutine height_uv(dsm, u, v, hs, code)
     type(dsm_t), intent(in) :: dsm
@@ -126,15 +167,15 @@ contains
     real(dp), intent(out) :: hs
     integer, intent(out) :: code
     integer :: i, j, i0, i1, j0, j1, ii, jj
-    real(dp) :: fu, fv, h00, h01, h10, h11, tu, tv, w, eu, ev
+    real(dp) :: fu, fv, h00, h01, h10, h11, w
+    logical :: ok
     hs = ieee_nan()
     code = pt_outside
-    eu = dsm%eu
-    ev = dsm%ev
+    call dsm_cells(dsm, u, v, i0, i1, j0, j1, ok)
+    if (.not. ok) return
     if (dsm%interp == interp_bilinear) then
-      if (.not. (v >= -ev .and. v <= dsm%nrows - 1 + ev .and. u >= -eu .and. u <= dsm%ncols - 1 + eu)) return
-      i = min(int(max(v, 0.0_dp)), dsm%nrows - 2)
-      j = min(int(max(u, 0.0_dp)), dsm%ncols - 2)
+      i = i0
+      j = j0
       fv = min(max(v - i, 0.0_dp), 1.0_dp)
       fu = min(max(u - j, 0.0_dp), 1.0_dp)
       h00 = dsm%hgt(j + 1, i + 1)
@@ -146,27 +187,11 @@ contains
       hs = (1.0_dp - fv) * ((1.0_dp - fu) * h00 + fu * h01) + fv * ((1.0_dp - fu) * h10 + fu * h11)
       code = pt_ok
     else
-      tv = v + 0.5_dp
-      tu = u + 0.5_dp
-      if (dsm%global) then
-        tu = modulo(tu, real(dsm%ncols, dp))
-      end if
-      if (.not. (tv >= -ev .and. tv <= dsm%nrows + ev .and. tu >= -eu .and. tu <= dsm%ncols + eu)) return
-      tv = min(max(tv, 0.0_dp), real(dsm%nrows, dp))
-      tu = min(max(tu, 0.0_dp), real(dsm%ncols, dp))
-      i1 = min(int(tv), dsm%nrows - 1)
-      i0 = i1
-      if (real(i1, dp) == tv .and. i1 >= 1) i0 = i1 - 1          ! on a row boundary: both cells
-      if (int(tv) == dsm%nrows) i0 = dsm%nrows - 1
-      j1 = min(int(tu), dsm%ncols - 1)
-      j0 = j1
-      if (real(j1, dp) == tu .and. j1 >= 1) j0 = j1 - 1
-      if (int(tu) == dsm%ncols) j0 = dsm%ncols - 1
       code = pt_nodata
       hs = -huge(1.0_dp)
       do ii = i0, i1
         do jj = j0, j1
-          w = dsm%hgt(jj + 1, ii + 1)
+          w = dsm%hgt(merge(dsm%ncols, jj + 1, jj < 0), ii + 1)         ! (jj = -1: the seam's last column)
           if (ieee_is_nan(w)) then
             hs = ieee_nan()
             return
@@ -174,14 +199,6 @@ contains
           hs = max(hs, w)
         end do
       end do
-      if (dsm%global .and. j0 == j1 .and. j0 == 0 .and. tu == 0.0_dp) then   ! seam: cell ncols-1 too
-        w = dsm%hgt(dsm%ncols, i0 + 1)
-        if (ieee_is_nan(w)) then
-          hs = ieee_nan()
-          return
-        end if
-        hs = max(hs, w)
-      end if
       code = pt_ok
     end if
   end subroutine height_uv

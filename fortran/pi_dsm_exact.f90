@@ -28,8 +28,8 @@ module pi_dsm_exact
   use pi_kinds, only: dp
   use pi_status
   use pi_vector, only: pi, axis_distance, far_distance
-  use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, pt_ok, pt_outside, &
-                    pt_nodata, range_max
+  use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_cells, dsm_box_bound, interp_nearest, pt_ok, &
+                    pt_outside, pt_nodata, range_max
   use pi_follow, only: dsm_ray_t, follow_ray, iterate_ray, ray_geo, level_crossing, level_crossing_back, &
                        set_hit, set_event, settle_start, refine_tol, newton_tol
   use pi_geodetic, only: ecr_to_geodetic
@@ -612,13 +612,16 @@ contains
 
   !> Where a point (u, v) lies for the chord rule: flags = the edges it is beyond (1, 2: v below,
   !> above; 4, 8: u below, above; bits of a global grid's u never set), 0 inside the defined area (with
-  !> height_uv's edge slack); i, j its cell as height_uv takes it (the nearest cell; the bilinear cell
-  !> between nodes i, i + 1 and j, j + 1), both -1 on a cell boundary inside the grid or outside.
+  !> height_uv's edge slack); i, j its cell as height_uv takes it (pi_dsm's dsm_cells), both -1 where
+  !> the point is outside or touches several cells (a nearest cell boundary, the seam; for bilinear,
+  !> an interior node line, where the cells on both sides are as near).
   pure subroutine point_class(dsm, u, v, flags, i, j)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: u, v
     integer, intent(out) :: flags, i, j
-    real(dp) :: lo, tu, tv
+    real(dp) :: lo
+    integer :: i0, i1, j0, j1
+    logical :: ok
     flags = 0
     i = -1
     j = -1
@@ -634,20 +637,11 @@ contains
     if (dsm%interp /= interp_nearest) then
       if (v == aint(v) .and. v > 0.0_dp .and. v < dsm%nrows - 1) return   ! on a node row
       if (u == aint(u) .and. u > 0.0_dp .and. u < dsm%ncols - 1) return   ! on a node column
-      i = min(int(max(v, 0.0_dp)), dsm%nrows - 2)
-      j = min(int(max(u, 0.0_dp)), dsm%ncols - 2)
-      return
     end if
-    tv = v + 0.5_dp
-    tu = u + 0.5_dp
-    if (dsm%global) tu = modulo(tu, real(dsm%ncols, dp))
-    tv = min(max(tv, 0.0_dp), real(dsm%nrows, dp))
-    tu = min(max(tu, 0.0_dp), real(dsm%ncols, dp))
-    if (tv == aint(tv) .and. tv > 0.0_dp .and. tv < dsm%nrows) return   ! on a row boundary
-    if (tu == aint(tu) .and. tu > 0.0_dp .and. tu < dsm%ncols) return   ! on a column boundary
-    if (dsm%global .and. tu == 0.0_dp) return                           ! on the seam
-    i = min(int(tv), dsm%nrows - 1)
-    j = min(int(tu), dsm%ncols - 1)
+    call dsm_cells(dsm, u, v, i0, i1, j0, j1, ok)
+    if (.not. ok .or. i0 /= i1 .or. j0 /= j1) return
+    i = i0
+    j = j0
   end subroutine point_class
 
   !> Move on to the next pending segment [pb, top of the stack]; nst = -1
