@@ -559,7 +559,25 @@ contains
       end if
       call dsm_box_bound(dsm, min(pa%u, ub) - dev_u, max(pa%u, ub) + dev_u, &
                          min(pa%v, pb%v) - dev_v, max(pa%v, pb%v) + dev_v, hc, out)
-      if (hc < huge(1.0_dp)) kind = chord_bound
+      if (hc < huge(1.0_dp)) then
+        kind = chord_bound
+        return
+      end if
+      ! the box takes in a cell without data. A path within chord_tol of its chord whose ends the
+      ! lookup puts in cells with data (the same or neighbours) is taken to be over them: a ray
+      ! 2e-16 to 5e-15 rad beside a no-data node line (26 ulps; the lookup never put a point of it
+      ! over no-data) had every segment's box touch the no-data cell through the rounding allowance:
+      ! STEP_LIMIT (a seventh review). A flip of the lookup between the ends is not looked for (a ray
+      ! exactly on such a line, where the lookup flips with the last bit, can so end in a hit).
+      if (tight_u .and. tight_v .and. ia >= 0 .and. ib >= 0) then
+        if (abs(ia - ib) <= 1 .and. abs(ja - jb) <= 1) then
+          call dsm_box_bound(dsm, max(min(pa%u, ub) - dlon_r / dsm%dlon, real(min(ja, jb), dp)), &
+                             min(max(pa%u, ub) + dlon_r / dsm%dlon, max(ja, jb) + 1.0_dp), &
+                             max(min(pa%v, pb%v) - dlat_r / abs(dsm%dlat), real(min(ia, ib), dp)), &
+                             min(max(pa%v, pb%v) + dlat_r / abs(dsm%dlat), max(ia, ib) + 1.0_dp), hc, out)
+          if (hc < huge(1.0_dp)) kind = chord_bound
+        end if
+      end if
       return
     end if
     if (common /= 0) then

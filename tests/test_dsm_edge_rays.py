@@ -301,3 +301,32 @@ def test_rays_aimed_at_a_cell_corner_are_not_slow(case):
     kind, r_ref, _ = ref.ray_ref(surf, s, _unit(l), r0=r_rev - 5.0, r1=r_rev + 5.0, ds=1e-3)
     assert kind == name
     assert abs(r - r_ref) < 1e-5, r - r_ref
+
+
+@pytest.mark.parametrize("eps", [3e-16, 1e-15, 3e-15, 1e-13])
+def test_a_ray_beside_a_no_data_node_line_hits_the_ground(eps):
+    """A bilinear grid with a column of NaN nodes (the cells on both sides of it have no data); a
+    ray in the meridian plane eps rad to the data side of the node line next to them comes down
+    from above H_max to below the ground. The lookup never puts a point of it over no-data, so the
+    answer is the ground hit (360.811741 m by the seventh review's reference, for every eps here).
+    For eps of 2e-16 to 5e-15 rad every segment's box took in the no-data cells through its
+    rounding allowance and the search ended STEP_LIMIT after ~100,000 conversions (that review)."""
+    sp, nr, nc = 1e-4, 40, 7
+    lat0, lon0 = -14.824607534826914, -59.375666750939814
+    h = np.full((nr, nc), 10.822155)
+    h[:, 3] = np.nan
+    h[0, 6] = -289.177845
+    h[38, 1] = 41.745702
+    dsm = GeodeticDSM.from_array(h, lat0, lon0, -sp, sp, interpolation="bilinear")
+    lon = lon0 + 2 * sp - np.degrees(eps)               # the data side of node line u = 2
+    s = geodetic_to_ecef(lat0 + 2 * sp, lon, 206.0)
+    e = geodetic_to_ecef(lat0 - (nr + 1) * sp, lon, -100.0)
+    l = _unit(e - s)
+    res = pi.intersect(dsm, s, l, method="exact")
+    assert res.status[0] == DSMStatus.HIT, (res.status[0], res.nsteps[0])
+    assert res.nsteps[0] < 2000, res.nsteps[0]
+    surf = ref.Surf(h, lat0, lon0, -sp, sp, "bilinear")
+    kind, r_ref, _ = ref.ray_ref(surf, s, l, r0=350.0, r1=370.0, ds=1e-3)
+    assert kind == "HIT"
+    assert abs(res.distance[0] - r_ref) < 1e-6, res.distance[0] - r_ref
+    assert abs(res.distance[0] - 360.811741) < 1e-3
