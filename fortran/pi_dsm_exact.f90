@@ -33,7 +33,7 @@ module pi_dsm_exact
   use pi_follow, only: dsm_ray_t, follow_ray, iterate_ray, ray_geo, level_crossing, level_crossing_back, &
                        set_hit, set_event, settle_start, refine_tol, newton_tol
   use pi_geodetic, only: ecr_to_geodetic
-  use pi_dsm_fast, only: fast_ray
+  use pi_dsm_fast, only: fast_ray, lat_second_bound
   use pi_dsm_sweep, only: sweep_fans, sweep_runs
   use pi_ieee, only: nan_dp, ieee_is_finite => is_finite, ieee_is_nan => is_nan
   !$ use omp_lib, only: omp_get_max_threads
@@ -228,7 +228,7 @@ contains
     if (s(1) == 0.0_dp .and. s(2) == 0.0_dp .and. l(1) == 0.0_dp .and. l(2) == 0.0_dp) then
       elam = 0.0_dp
     else if (rho > 0.0_dp) then
-      elam = 8.9e-16_dp * (abs(s(1)) + abs(s(2)) + 2.0_dp * max(abs(ra), abs(rb)) * 2.0_dp) / rho + 1.0e-15_dp
+      elam = 8.9e-16_dp * (abs(s(1)) + abs(s(2)) + 4.0_dp * max(abs(ra), abs(rb))) / rho + 1.0e-15_dp
     end if
     dlam = modulo(lon_b - lon_a + pi, 2.0_dp * pi) - pi
     if (elam >= 0.0_dp .and. abs(dlam) + elam < 0.25_dp * pi) then
@@ -515,7 +515,7 @@ contains
     type(rpt_t), intent(in) :: pa, pb
     integer, intent(out) :: kind
     real(dp), intent(out) :: hc
-    real(dp) :: llen, den, rho, kap, lat2, dlat_r, dlon_r, dev_u, dev_v, ub, mdm, cmom, lo
+    real(dp) :: llen, den, rho, lat2, dlat_r, dlon_r, dev_u, dev_v, ub, cmom, lo
     real(dp) :: ev, eu, gap
     logical :: out
     integer :: fa, fb, ia, ja, ib, jb, common
@@ -527,9 +527,7 @@ contains
     if (.not. (den > 0.5_dp * dsm%a * (1.0_dp - dsm%e2))) return
     rho = axis_distance(s, l, pa%r, pb%r)
     if (.not. (rho > 1.0e-3_dp * dsm%a)) return
-    kap = 1.0_dp / den + 1.0_dp / rho
-    mdm = 1.5_dp * dsm%e2 * dsm%a / (1.0_dp - dsm%e2)**1.5_dp
-    lat2 = kap / den + (mdm / den + 1.0_dp) / den**2
+    lat2 = lat_second_bound(dsm, den, rho)
     cmom = abs(s(1) * l(2) - s(2) * l(1))
     dlat_r = 0.125_dp * lat2 * llen**2                    ! radians
     dlon_r = 0.25_dp * cmom * llen**2 / rho**3

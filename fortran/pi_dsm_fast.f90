@@ -41,7 +41,7 @@ module pi_dsm_fast
   implicit none
   private
 
-  public :: fast_ray, fast_piece, fast_sub, fast_maxlen, fast_maxdv
+  public :: fast_ray, fast_piece, fast_sub, fast_maxlen, fast_maxdv, lat_second_bound
 
   !> longest piece with one linear latitude model (units of a: ~640 m on Earth;
   !> its widening there is ~0.004 m on the ground)
@@ -563,7 +563,7 @@ contains
     type(xpt_t), intent(in) :: xa, xb
     type(piece_t), intent(out) :: pc
     logical, intent(out) :: ok
-    real(dp) :: mmin, den, rho, kap, cm, psi2, len
+    real(dp) :: mmin, den, rho, psi2, len
     call piece_ends(xa, xb, pc)
     pc%dv = huge(1.0_dp)
     pc%hmarg = fast_hmarg * dsm%a
@@ -575,9 +575,7 @@ contains
     if (.not. (den > 0.5_dp * mmin)) return
     rho = axis_distance(s, l, xa%r, xb%r)
     if (.not. (rho > 1.0e-3_dp * dsm%a)) return
-    kap = 1.0_dp / den + 1.0_dp / rho                        ! |d(l.north)/dr|
-    cm = 1.5_dp * dsm%e2 * dsm%a / (1.0_dp - dsm%e2)**1.5_dp  ! |dM/dpsi|
-    psi2 = kap / den + (cm / den + 1.0_dp) / den**2          ! |psi''|
+    psi2 = lat_second_bound(dsm, den, rho)                    ! |psi''|
     ! interpolation error psi2 L^2 / 8 and rounding of the exact latitudes
     pc%dv = (0.125_dp * psi2 * len * len + fast_latmarg * (1.0_dp + abs(xa%lat) + abs(xb%lat))) / abs(dsm%dlat)
     ! longitude along a line: rho^2 lambda' is constant, so |lambda''| = 2 |lambda' rho'| / rho <= 2 / rho^2;
@@ -585,6 +583,19 @@ contains
     pc%du = (0.25_dp * (len / rho)**2 + fast_latmarg * (1.0_dp + pi)) / dsm%dlon
     ok = pc%dv <= fast_maxdv .and. pc%du <= fast_maxdv .and. abs(xb%u - xa%u) < 0.25_dp * pi / dsm%dlon
   end subroutine make_piece
+
+  !> A bound of |psi''|, the second derivative of geodetic latitude along a straight line, on a
+  !> stretch whose lowest height h_low gives den = M_min + min(h_low, 0) and whose distance from the
+  !> polar axis is at least rho: kappa/den + (|dM/dpsi|/den + 1)/den^2 with kappa = 1/den + 1/rho
+  !> (how fast l.north turns; module header). Used by make_piece and pi_dsm_exact's chord rule.
+  pure function lat_second_bound(dsm, den, rho) result(psi2)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: den, rho
+    real(dp) :: psi2, kap, cm
+    kap = 1.0_dp / den + 1.0_dp / rho                        ! |d(l.north)/dr|
+    cm = 1.5_dp * dsm%e2 * dsm%a / (1.0_dp - dsm%e2)**1.5_dp  ! |dM/dpsi|
+    psi2 = kap / den + (cm / den + 1.0_dp) / den**2
+  end function lat_second_bound
 
   !> The exact mode's answer for one ray (l unit, s above the surface), or
   !> ok = .false. (res%nsteps counts its conversions; nothing else is set)
