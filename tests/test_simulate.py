@@ -91,6 +91,36 @@ def box():
 
 
 @pytest.mark.filterwarnings("ignore:.*where the ortho-image has no value")
+def test_default_blocks_hold_about_block_pixels(box, monkeypatch):
+    """block_lines=None: blocks of BLOCK_PIXELS // npixels lines (at least one), the same image as one block."""
+    from planet_intersect import simulate as sim_mod
+
+    dsm, ortho, scene, sensor = box
+    seen = []
+
+    class Recorder(pi.sensors.Sensor):
+        shape = sensor.shape
+
+        def rays(self, k0=0, k1=None):
+            seen.append((k0, k1))
+            return sensor.rays(k0, k1)
+
+    npx = sensor.shape[1]
+    monkeypatch.setattr(sim_mod, "BLOCK_PIXELS", 7 * npx + 3)       # 7 lines per block
+    a = pi.simulate_image(dsm, ortho, Recorder(), threads=1, occlusion=False)
+    nl = sensor.shape[0]
+    assert seen == [(k, min(k + 7, nl)) for k in range(0, nl, 7)]
+    monkeypatch.setattr(sim_mod, "BLOCK_PIXELS", 5)                 # fewer than a line: one line per block
+    seen.clear()
+    b = pi.simulate_image(dsm, ortho, Recorder(), threads=1, occlusion=False)
+    assert seen == [(k, k + 1) for k in range(nl)]
+    c = pi.simulate_image(dsm, ortho, sensor, threads=1, occlusion=False, block_lines=nl)
+    for name in ("image", "valid", "lat", "lon", "height", "surface", "status", "p"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(c, name), err_msg=name)
+        np.testing.assert_array_equal(getattr(b, name), getattr(c, name), err_msg=name)
+
+
+@pytest.mark.filterwarnings("ignore:.*where the ortho-image has no value")
 def test_blocks_threads_and_memmap_give_identical_results(box, tmp_path):
     dsm, ortho, scene, sensor = box
     a = pi.simulate_image(dsm, ortho, sensor, threads=1, block_lines=1000)

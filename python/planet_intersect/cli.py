@@ -650,7 +650,7 @@ def _simulate(args) -> int:
     _require("matplotlib", "plot", "simulate")
     if args.threads is not None and args.threads < 0:
         raise CLIError(f"--threads must be >= 0, got {args.threads}")
-    if args.block_lines < 1:
+    if args.block_lines is not None and args.block_lines < 1:
         raise CLIError(f"--block-lines must be >= 1, got {args.block_lines}")
     t0 = time.perf_counter()
     if args.dsm is None:
@@ -754,7 +754,8 @@ def _add_simulate_parser(sub) -> None:
     s.add_argument("--no-occlusion", action="store_true", help="skip the occlusion mask (one ray per ortho pixel)")
     s.add_argument("--compare-iterative", action="store_true", help="also simulate with the iterative method")
     s.add_argument("--memmap", action="store_true", help="keep the backplanes in memory-mapped files (huge images)")
-    s.add_argument("--block-lines", type=int, default=256, help="image lines per block (default 256)")
+    s.add_argument("--block-lines", type=int, default=None,
+                   help="image lines per block (default: as many as make ~131,072 pixels)")
     s.add_argument("--threads", type=int, help="OpenMP threads (default: all cores)")
     s.add_argument("--size", type=int, default=640, help="without --dsm: the paper scene's size in metres")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
