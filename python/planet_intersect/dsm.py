@@ -44,6 +44,29 @@ def _number(value, name: str) -> float:
     return v
 
 
+def _unmask(values, name: str, error=DSMError):
+    """``values`` with a masked array's masked elements as NaN (float64); anything else
+    unchanged. np.array and np.asarray drop the mask: reviews saw a masked -9999 become a
+    9,999 m pit in a DSM and masked placeholders become brightness in an ortho-image.
+    Used by GeodeticDSM.from_array and OrthoImage.from_array; ``error`` is raised for
+    masked values that are not real numbers."""
+    if not np.ma.isMaskedArray(values):
+        return values
+    if values.dtype.kind not in "fiub":
+        raise error(f"{name}: must be real numbers, got dtype {values.dtype}")
+    return values.astype(np.float64).filled(np.nan)
+
+
+def _file_nodata(nodata, file_nodata):
+    """The no-data value of a raster being read: the caller's ``nodata``, else the
+    file's tag, where a NaN tag (GDAL's usual) counts as none, NaN being no data
+    already (GeodeticDSM.read and OrthoImage.read)."""
+    nd = nodata if nodata is not None else file_nodata
+    if nodata is None and nd is not None and not math.isfinite(nd):
+        return None
+    return nd
+
+
 class GeodeticDSM:
     """Heights above an ellipsoid on a regular geodetic latitude/longitude grid.
 
@@ -95,12 +118,7 @@ class GeodeticDSM:
         self = object.__new__(cls)
         if isinstance(interpolation, str) is False or interpolation not in _INTERP:
             raise DSMError(f"interpolation must be 'bilinear' or 'nearest', got {interpolation!r}")
-        if np.ma.isMaskedArray(heights):
-            # masked cells are no data (np.array would drop the mask: a review saw a masked -9999
-            # become a 9,999 m pit)
-            if heights.dtype.kind not in "fiub":
-                raise DSMError(f"heights: must be real numbers, got dtype {heights.dtype}")
-            heights = heights.astype(np.float64).filled(np.nan)
+        heights = _unmask(heights, "heights")                 # masked cells are no data
         if np.iscomplexobj(heights):
             raise DSMError("heights: must be real numbers, got complex values")
         try:
@@ -350,9 +368,7 @@ class GeodeticDSM:
                 raise DSMError(f"DSM file {path}: no CRS (a geographic or projected CRS is needed)")
             if not (1 <= band <= src.count):
                 raise DSMError(f"DSM file {path}: band {band} does not exist (the file has {src.count})")
-            nd = nodata if nodata is not None else src.nodata
-            if nodata is None and nd is not None and not math.isfinite(nd):
-                nd = None                               # a NaN tag (GDAL's usual): NaN is no data already
+            nd = _file_nodata(nodata, src.nodata)
             warped = None
             if src.crs.is_geographic and _geographic_datum(src.crs, src.bounds, path, "DSM", a, f) == "as-is":
                 t = src.transform

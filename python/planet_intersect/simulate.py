@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .dsm import DSMStatus, GeodeticDSM, _npz_arrays, _number
+from .dsm import DSMStatus, GeodeticDSM, _file_nodata, _npz_arrays, _number, _unmask
 from .geodetic import geodetic_to_ecef
 
 __all__ = ["OrthoImage", "SimResult", "simulate_image", "SURFACE_CODES"]
@@ -101,12 +101,7 @@ class OrthoImage:
         nodata : float, optional
             Value marking missing pixels (NaN always does).
         """
-        if np.ma.isMaskedArray(values):
-            # masked elements are no data (np.asarray would drop the mask: a review saw masked -9999
-            # placeholders become brightness); real numbers only
-            if values.dtype.kind not in "fiub":
-                raise TypeError(f"values: must be real numbers, got dtype {values.dtype}")
-            values = values.astype(np.float64).filled(np.nan)
+        values = _unmask(values, "values", TypeError)           # masked elements are no data
         try:
             arr = np.asarray(values)
         except (TypeError, ValueError) as exc:
@@ -206,9 +201,7 @@ class OrthoImage:
         with src:
             if src.crs is None:
                 raise ValueError(f"ortho-image file {path}: no CRS (a geographic or projected CRS is needed)")
-            nd = nodata if nodata is not None else src.nodata
-            if nodata is None and nd is not None and not np.isfinite(nd):
-                nd = None                               # a NaN tag: NaN is no data already
+            nd = _file_nodata(nodata, src.nodata)
             data = src.read()                                   # (bands, rows, cols)
             dtype = data.dtype
             from .dsm import _geographic_datum
