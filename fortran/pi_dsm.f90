@@ -54,6 +54,11 @@ module pi_dsm
     !> dsm_box_bound): the DSM's own edge pixel centres came out outside by ~1e-13 cells,
     !> and rays aimed at them were LEFT_DSM (a review)
     real(dp) :: eu = 0, ev = 0
+    !> the grid centre's geodetic latitude and longitude (radians, longitude in [-pi, pi)) and
+    !> the ellipsoid's unit normal there (ECR): a reference for pi_geodetic's
+    !> ecr_to_geodetic_near, which converts points within 0.01 rad of it exactly without
+    !> atan2 (pi_dsm_fast's first conversion of a ray; docs/shin-park-notes.md, "Fast exact path")
+    real(dp) :: clat = 0, clon = 0, cnx = 1, cny = 0, cnz = 0
   end type dsm_t
 
 contains
@@ -90,6 +95,11 @@ contains
     dsm%global = dsm%ncols * dlon >= 2.0_dp * pi * (1.0_dp - 1.0e-12_dp)
     dsm%eu = 8.0_dp * spacing(pi) / dlon
     dsm%ev = 8.0_dp * spacing(pi) / abs(dlat)
+    dsm%clat = lat0 + 0.5_dp * (dsm%nrows - 1) * dlat
+    dsm%clon = modulo(dsm%lonc + pi, 2.0_dp * pi) - pi
+    dsm%cnx = cos(dsm%clat) * cos(dsm%clon)
+    dsm%cny = cos(dsm%clat) * sin(dsm%clon)
+    dsm%cnz = sin(dsm%clat)
   end subroutine dsm_attach
 
   !> Continuous grid coordinates of (lat, lon): u = column, v = row (0-based,

@@ -36,7 +36,7 @@ module pi_dsm_fast
   use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, pt_ok, pt_nodata
   use pi_follow, only: dsm_ray_t, ray_geo, level_crossing_back, ellipsoid_entry, set_hit, set_event, settle_start, &
                        refine_tol, newton_tol
-  use pi_geodetic, only: ecr_to_geodetic_nb, ecr_to_geodetic_near
+  use pi_geodetic, only: ecr_to_geodetic_near
   use pi_ieee, only: ieee_is_nan => is_nan        ! (one test per bilinear cell solve: not in the hot loop)
   implicit none
   private
@@ -96,6 +96,9 @@ contains
   !> same ray nearby, by pi_geodetic's ecr_to_geodetic_near (Newton started
   !> from ref's tangent, angles as increments on ref's: the same answer to
   !> ~1e-15 relative, about a third of the cost). ref must not be q itself.
+  !> Without ref the same routine starts from the DSM's centre (dsm_t's clat, clon and
+  !> normal) and the slab's middle height: on a regional DSM no atan2 and 1-2 fewer Newton
+  !> steps than ecr_to_geodetic_nb, to which it falls back beyond 0.01 rad of the centre.
   pure subroutine eval_x(dsm, s, l, r, q, ref)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: s(3), l(3), r
@@ -107,7 +110,12 @@ contains
       call ecr_to_geodetic_near(p(1), p(2), p(3), dsm%a, dsm%f, ref%lat, ref%lon, ref%nx, ref%ny, ref%nz, &
                                 ref%h + ref%dh * (r - ref%r), q%lat, q%lon, q%h, q%nx, q%ny, q%nz)
     else
-      call ecr_to_geodetic_nb(p(1), p(2), p(3), dsm%a, dsm%f, q%lat, q%lon, q%h, q%nx, q%ny, q%nz)
+      ! no point of this ray yet: the DSM's centre as the reference (ecr_to_geodetic_near falls
+      ! back to ecr_to_geodetic_nb beyond 0.01 rad of it) and the slab's middle as the height
+      ! estimate; the same answer as ecr_to_geodetic_nb to ~1e-15 relative, without its two
+      ! atan2 and with 1-2 fewer Newton steps on a regional DSM
+      call ecr_to_geodetic_near(p(1), p(2), p(3), dsm%a, dsm%f, dsm%clat, dsm%clon, dsm%cnx, dsm%cny, dsm%cnz, &
+                                0.5_dp * (dsm%hmax + dsm%hmin), q%lat, q%lon, q%h, q%nx, q%ny, q%nz)
     end if
     q%dh = l(1) * q%nx + l(2) * q%ny + l(3) * q%nz          ! dh/dr = l . n
     q%r = r
