@@ -284,6 +284,23 @@ subroutine core_ecr_to_geodetic(n, p, a, f, mode, lat, lon, h)
   end if
 end subroutine core_ecr_to_geodetic
 
+!> ECR -> geodetic for n points p(3, n) by pi_geodetic's ecr_to_geodetic_near
+!> with the reference (lat_r, lon_r) (radians; its normal computed here) and the
+!> height estimate h_est (units of a), as the exact DSM mode's first conversion
+!> of a ray uses it (the DSM's centre, the slab's middle): for tests of that use
+!> against the exact conversion. lat, lon (radians), h.
+subroutine core_ecr_to_geodetic_near(n, p, a, f, lat_r, lon_r, h_est, lat, lon, h)
+  use pi_kinds, only: dp
+  use pi_geodetic, only: ecr_to_geodetic_near
+  implicit none
+  integer, intent(in) :: n
+  real(dp), intent(in) :: p(3, n), a, f, lat_r, lon_r, h_est
+  real(dp), intent(out) :: lat(n), lon(n), h(n)
+  real(dp) :: nx(n), ny(n), nz(n)
+  call ecr_to_geodetic_near(p(1, :), p(2, :), p(3, :), a, f, lat_r, lon_r, cos(lat_r) * cos(lon_r), &
+                            cos(lat_r) * sin(lon_r), sin(lat_r), h_est, lat, lon, h, nx, ny, nz)
+end subroutine core_ecr_to_geodetic_near
+
 !> Geodetic (lat, lon radians, h) -> ECR p(3, n).
 subroutine core_geodetic_to_ecr(n, lat, lon, h, a, f, p)
   use pi_kinds, only: dp

@@ -148,3 +148,37 @@ def test_other_body_and_sphere():
 def test_bad_input(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+
+
+@pytest.mark.parametrize("lat_r, lon_r", [(36.6, -84.3), (-45.0, 179.995), (89.99, 30.0), (-89.99, -150.0),
+                                          (0.004, 10.0), (60.0, 0.0)])
+def test_conversion_from_a_far_reference_is_exact(lat_r, lon_r):
+    """The exact DSM mode's first conversion of a ray (pi_dsm_fast's eval_x without a point of the ray)
+    runs ecr_to_geodetic_near from the DSM's centre, up to ~0.01 rad away, with the slab's middle
+    height as the estimate, km off: it must give the exact conversion's answer. Points within 0.02
+    rad of the reference (beyond 0.01 its fallback), h from -1 km to 20 km, estimates 10 km off;
+    truth from geodetic_to_ecef, and the exact conversion (checked against PROJ and SPICE above)."""
+    from planet_intersect._ext import core
+
+    rng = np.random.default_rng(int(abs(lat_r * 1000 + lon_r)))
+    n = 20_000
+    lat = np.clip(lat_r + np.degrees(rng.uniform(-0.02, 0.02, n)), -90, 90)
+    lon = (lon_r + np.degrees(rng.uniform(-0.02, 0.02, n)) + 180) % 360 - 180
+    h = rng.uniform(-1000.0, 2.0e4, n)
+    lat[:3] = [lat_r, lat_r, lat[2]]
+    lon[:3] = [lon_r, lon_r, lon_r]
+    p = pi.geodetic_to_ecef(lat, lon, h)
+    ex_lat, ex_lon, ex_h = core.core_ecr_to_geodetic(np.ascontiguousarray(p).T, A, F, 0)
+    for h_est in (500.0, -1.0e4, 3.0e4):
+        la, lo, hh = core.core_ecr_to_geodetic_near(np.ascontiguousarray(p).T, A, F, np.radians(lat_r),
+                                                    np.radians(lon_r), h_est)
+        assert np.all(np.abs(lo) <= np.pi)
+        dlon = (lo - ex_lon + np.pi) % (2 * np.pi) - np.pi
+        off_axis = np.abs(lat) < 89.9999
+        # the same answer as the exact conversion to its ~1e-15 relative accuracy
+        assert np.max(np.abs(la - ex_lat)) < 4e-15
+        assert np.max(np.abs(dlon[off_axis] * np.cos(ex_lat[off_axis]))) < 4e-15
+        assert np.max(np.abs(hh - ex_h)) < 4e-15 * A
+        # and the truth it was made from (geodetic_to_ecef's own rounding included)
+        assert np.max(np.abs(la - np.radians(lat))) < 1e-14
+        assert np.max(np.abs(hh - h)) < 1e-8
