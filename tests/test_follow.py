@@ -429,3 +429,29 @@ def test_drone_on_the_polar_axis_over_a_bilinear_pole():
         r = pi.intersect(dsm, s, np.array([0.0, 0.0, -1.0]), method="exact")
         assert r.status[0] == DSMStatus.HIT and r.nsteps[0] < 200, (off, r.status[0], r.nsteps[0])
         assert abs(r.height[0] - 6.0) < 1e-4 and abs(r.distance[0] - 44.0) < 1e-3, (off, r.height[0], r.distance[0])
+
+
+@pytest.mark.xfail(strict=True, reason="known, not fixed: on a bilinear grid the exact mode ends STEP_LIMIT "
+                   "(~100,000 conversions, ~10 ms) for vertical rays within ~2e-9 m of the polar axis "
+                   "(shin-park-notes, 'Exact mode', 3a: rays aimed at the pole itself; found 2026-12-02)")
+def test_vertical_rays_at_the_pole_itself_on_a_bilinear_grid():
+    """A nadir view of the pole built the obvious way: target and sensor both at latitude 90 by
+    geodetic_to_ecef, which puts them ~4e-10 m off the axis (cos 90 deg rounds to 6e-17). On a
+    polar cap grid (89-90 deg, 1 deg columns, the pole row one height of 50 m) the ray following
+    hits the pole row, and so does the exact mode for most longitudes, but for some it runs out of
+    steps. A strict xfail: when the exact mode is fixed this test fails and the mark must go."""
+    rng = np.random.default_rng(5)
+    h = rng.uniform(0.0, 100.0, (201, 360))
+    h[-1] = 50.0                                          # the pole: one height
+    dsm = GeodeticDSM.from_array(h, 89.0, -180.0, 0.005, 1.0, interpolation="bilinear")
+    bad = []
+    for lon in (0.0, 37.3, -120.0):
+        for alt in (2000.0, 600e3):
+            t = pi.geodetic_to_ecef(90.0, lon, 50.0)
+            s = pi.geodetic_to_ecef(90.0, lon, alt)
+            f = pi.intersect(dsm, s, t - s, method="following")
+            assert f.status[0] == DSMStatus.HIT and abs(f.height[0] - 50.0) < 1e-3
+            r = pi.intersect(dsm, s, t - s, method="exact")
+            if not (r.status[0] == DSMStatus.HIT and abs(r.height[0] - 50.0) < 1e-6):
+                bad.append((lon, alt, int(r.status[0]), int(r.nsteps[0])))
+    assert not bad, bad
