@@ -194,7 +194,7 @@ contains
     real(dp), intent(in) :: s(3), l(3), ra, rb, lon_a, lon_b, rho, hlow
     real(dp), intent(out) :: hb
     logical, intent(out) :: out
-    real(dp) :: pa(3), pb(3), rho_max, den, colat, lat_lo, lat_hi, v0, v1, w, lo, f0, f1, h0, h1
+    real(dp) :: pa(3), pb(3), rho_max, den, colat, lat_lo, lat_hi, v0, v1, w, lo
     real(dp) :: dlam, elam, u0, u1
     integer :: i0, i1, j, cw
     hb = huge(1.0_dp)
@@ -220,22 +220,37 @@ contains
       w = v0; v0 = v1; v1 = w
     end if
     ! longitude along a line not through the axis is monotone, sweeping the angle between its ends'
-    ! projections (< pi); a point's longitude is atan2(y, x) of coordinates rounded by at most
-    ! ~4.4e-16 (|s| + r (|l| + 1)) each, so by at most that times 2/rho. A drone within ~6 mm of the
-    ! axis over a pole row that varies with longitude ran out of segments with all longitudes
-    ! (a review); a ray exactly on the axis (x = y = 0 at every point) has its ends' longitude.
+    ! projections (< pi); a point's longitude is atan2(y, x) of its x = s_x + r l_x and y (the
+    ! same for y), each rounded by at most 1.1e-16 (|s_x| + 2 |r l_x|), so the angle by at most
+    ! their sum over rho at each end; the bound below is four times that, plus atan2's own
+    ! rounding. A drone within ~6 mm of the axis over a pole row that varies with longitude ran
+    ! out of segments with all longitudes (a review); a ray exactly on the axis (x = y = 0 at every
+    ! point) has its ends' longitude. The rounding of r l_x is relative to l_x: a bound taking it
+    ! relative to |l| (|s| + 4 r) gave a nadir view of the pole (~4e-10 m off the axis, |l_x| ~
+    ! 6e-17) a degree of longitude, whose pole-row heights it could never rule out (STEP_LIMIT,
+    ! a review; shin-park-notes 3a)
     elam = -1.0_dp
     if (s(1) == 0.0_dp .and. s(2) == 0.0_dp .and. l(1) == 0.0_dp .and. l(2) == 0.0_dp) then
       elam = 0.0_dp
     else if (rho > 0.0_dp) then
-      elam = 8.9e-16_dp * (abs(s(1)) + abs(s(2)) + 4.0_dp * max(abs(ra), abs(rb))) / rho + 1.0e-15_dp
+      elam = 8.9e-16_dp * (abs(s(1)) + abs(s(2)) + 4.0_dp * max(abs(ra), abs(rb)) * (abs(l(1)) + abs(l(2)))) &
+             / rho + 1.0e-15_dp
     end if
     dlam = modulo(lon_b - lon_a + pi, 2.0_dp * pi) - pi
     if (elam >= 0.0_dp .and. abs(dlam) + elam < 0.25_dp * pi) then
       w = (modulo(lon_a - dsm%lonc + pi, 2.0_dp * pi) - pi + (dsm%lonc - dsm%lon0)) / dsm%dlon   ! u(lon_a)
-      u0 = w + (min(dlam, 0.0_dp) - elam) / dsm%dlon - 8.0_dp * spacing(pi) / dsm%dlon
-      u1 = w + (max(dlam, 0.0_dp) + elam) / dsm%dlon + 8.0_dp * spacing(pi) / dsm%dlon
-      call dsm_box_bound(dsm, u0 - 1.0e-9_dp, u1 + 1.0e-9_dp, v0, v1, hb, out)
+      u0 = w + (min(dlam, 0.0_dp) - elam) / dsm%dlon - 8.0_dp * spacing(pi) / dsm%dlon - 1.0e-9_dp
+      u1 = w + (max(dlam, 0.0_dp) + elam) / dsm%dlon + 8.0_dp * spacing(pi) / dsm%dlon + 1.0e-9_dp
+      call dsm_box_bound(dsm, u0, u1, v0, v1, hb, out)
+      ! a bilinear band inside one row of cells across more than two columns: dsm_box_bound takes
+      ! the node rows' maximum, which holds the next row's heights, and a ray within ~2e-9 m of the
+      ! axis (a nadir view of the pole) never got its segments ruled out (STEP_LIMIT, a review);
+      ! the surface itself is linear in v on each node column and in u between them, so its
+      ! largest value over the box is at v0 or v1 on a node column from floor(u0) to ceiling(u1)
+      ! (u0, u1 clamped to +-2 ncols before the integer conversion: a global grid's stay inside, and
+      ! a regional grid's columns are clamped to the grid anyway)
+      if (dsm%interp /= interp_nearest .and. hb < huge(1.0_dp)) &
+        hb = min(hb, band_columns(floor(max(u0, -2.0_dp * dsm%ncols)), ceiling(min(u1, 2.0_dp * dsm%ncols))))
       return
     end if
     ! the rows the band touches (nodes for bilinear, cells for nearest), every column; the grid
@@ -256,19 +271,7 @@ contains
       ! a bilinear band inside one row of cells: the surface itself, linear in v along each node
       ! column, so its largest value is at v0 or v1 on some column (the node rows' maximum took in
       ! the next row's heights and the segments at the pole were never ruled out: a review)
-      if (i1 == i0) i1 = min(i0 + 1, dsm%nrows - 1)
-      f0 = min(max(v0 - i0, 0.0_dp), 1.0_dp)
-      f1 = min(max(v1 - i0, 0.0_dp), 1.0_dp)
-      do j = 1, dsm%ncols
-        h0 = dsm%hgt(j, i0 + 1)
-        h1 = dsm%hgt(j, i1 + 1)
-        if (ieee_is_nan(h0) .or. ieee_is_nan(h1)) then
-          hb = huge(1.0_dp)
-          return
-        end if
-        hb = max(hb, h0 + f0 * (h1 - h0), h0 + f1 * (h1 - h0))
-      end do
-      hb = hb + 1.0e-12_dp * (1.0_dp + abs(hb))            ! (the rounding of the two products)
+      hb = band_columns(0, dsm%ncols - 1)
       return
     end if
     ! a thin band of rows across every column: range_max's square pyramid blocks would take in
@@ -278,6 +281,41 @@ contains
     do j = 0, dsm%ncols - 1, cw
       hb = max(hb, range_max(dsm, i0, i1, j, min(j + cw - 1, dsm%ncols - 1)))
     end do
+  contains
+    !> The bilinear surface's largest value over rows v0..v1 (inside one row of cells) on node
+    !> columns j0..j1 (0-based; wrapped on a global grid, whose last column repeats the first;
+    !> clamped to the grid otherwise), +huge when v0..v1 is not inside one row of cells or a
+    !> node is no-data.
+    pure function band_columns(j0, j1) result(hmax)
+      integer, intent(in) :: j0, j1
+      real(dp) :: hmax, g0, g1, c0, c1
+      integer :: k0, k1, jj, jc, period
+      hmax = huge(1.0_dp)
+      k0 = min(max(floor(v0), 0), dsm%nrows - 1)
+      k1 = min(max(ceiling(v1), 0), dsm%nrows - 1)
+      if (k1 > k0 + 1) return
+      if (k1 == k0) k1 = min(k0 + 1, dsm%nrows - 1)
+      g0 = min(max(v0 - k0, 0.0_dp), 1.0_dp)
+      g1 = min(max(v1 - k0, 0.0_dp), 1.0_dp)
+      period = dsm%ncols - 1                                ! (global bilinear: one turn of nodes)
+      hmax = -huge(1.0_dp)
+      do jj = j0, j1
+        if (dsm%global) then
+          jc = modulo(jj, period)
+        else
+          jc = min(max(jj, 0), dsm%ncols - 1)
+        end if
+        c0 = dsm%hgt(jc + 1, k0 + 1)
+        c1 = dsm%hgt(jc + 1, k1 + 1)
+        if (ieee_is_nan(c0) .or. ieee_is_nan(c1)) then
+          hmax = huge(1.0_dp)
+          return
+        end if
+        hmax = max(hmax, c0 + g0 * (c1 - c0), c0 + g1 * (c1 - c0))
+        if (jj - j0 > dsm%ncols) exit                       ! (a full turn is enough)
+      end do
+      hmax = hmax + 1.0e-12_dp * (1.0_dp + abs(hmax))       ! (the rounding of the two products)
+    end function band_columns
   end subroutine polar_box
 
   !> Exact first hit for one ray (l unit, s above the surface).
