@@ -110,7 +110,10 @@ contains
     real(dp), intent(in) :: lat, lon
     real(dp), intent(out) :: u, v
     real(dp) :: dl
-    dl = modulo(lon - dsm%lonc + pi, 2.0_dp * pi) - pi
+    dl = lon - dsm%lonc + pi
+    ! modulo (a libm fmod) only off [0, 2 pi), where it would return dl unchanged: the same bits
+    if (.not. (dl >= 0.0_dp .and. dl < 2.0_dp * pi)) dl = modulo(dl, 2.0_dp * pi)
+    dl = dl - pi
     u = (dl + (dsm%lonc - dsm%lon0)) / dsm%dlon
     v = (lat - dsm%lat0) / dsm%dlat
   end subroutine dsm_grid_uv

@@ -725,7 +725,7 @@ contains
     call dsm_height(dsm, x_in%lat, x_in%lon, hs, code)
     call settle_start(dsm, s, l, rc, x_in%h, hs, code, res, done)
     if (done) return
-    cell = dsm%a * max(abs(dsm%dlat), dsm%dlon * cos(x_in%lat))
+    cell = dsm%a * max(abs(dsm%dlat), dsm%dlon * sqrt(x_in%nx**2 + x_in%ny**2))   ! (cos(lat) from the normal)
     hor = sqrt(max(0.0_dp, 1.0_dp - x_in%dh**2))
     len1 = min(1.5_dp * cell / max(hor, 0.05_dp), (1.0_dp - 1.0e-9_dp) * (x_in%h - dsm%hmin) / (-x_in%dh))
     x1 = x_in

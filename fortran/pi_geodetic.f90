@@ -154,7 +154,7 @@ contains
                                             lat, lon, h, nx, ny, nz)
     real(dp), intent(in) :: x, y, z, a, f, lat_r, lon_r, nx_r, ny_r, nz_r, h_est
     real(dp), intent(out) :: lat, lon, h, nx, ny, nz
-    real(dp) :: b, a2, b2, e2, y0, y1, x0, x1, t, lo, hi, g0, g1, gn, cr, sr, den, arg
+    real(dp) :: b, a2, b2, e2, y0, y1, t, lo, hi, g0, g1, gn, cr, sr, den, arg
     real(dp) :: rho
     b = a * (1.0_dp - f)
     a2 = a * a
@@ -172,11 +172,10 @@ contains
     end if
     lo = -b2 + b * y1
     hi = -b2 + sqrt(a2 * y0 * y0 + b2 * y1 * y1)
-    t = eberly_root(y0, y1, a, b, h_est * a2 * sqrt(1.0_dp - e2 * sr * sr) / a, lo, hi, .true.)   ! h_est a^2 / N_r
-    x0 = a2 * y0 / (t + a2)
-    x1 = b2 * y1 / (t + b2)
-    g0 = x0 / a2
-    g1 = sign(x1 / b2, z)
+    t = eberly_root(y0, y1, a, b, h_est * a * sqrt(1.0_dp - e2 * sr * sr), lo, hi, .true.)   ! h_est a^2 / N_r
+    ! the foot point's gradient direction (x0/a2, x1/b2) with x0 = a2 y0/(t + a2), x1 = b2 y1/(t + b2)
+    g0 = y0 / (t + a2)
+    g1 = sign(y1 / (t + b2), z)
     gn = sqrt(g0 * g0 + g1 * g1)
     h = t * gn
     ! latitude: the increment on lat_r, tan(d) = (cr g1 - sr g0) / (cr g0 + sr g1)
@@ -192,10 +191,11 @@ contains
     lon = lon_r + atan_small(arg)
     if (lon > pi_) lon = lon - 2.0_dp * pi_
     if (lon < -pi_) lon = lon + 2.0_dp * pi_
-    rho = g0 / gn                                          ! cos(lat)
-    nx = rho * x / y0
-    ny = rho * y / y0
-    nz = g1 / gn
+    ! the normal (cos(lat) x/y0, cos(lat) y/y0, sin(lat)), cos(lat) = g0/gn: one division
+    rho = 1.0_dp / (gn * y0)
+    nx = g0 * x * rho
+    ny = g0 * y * rho
+    nz = g1 * y0 * rho
   contains
     elemental function atan_small(zz) result(v)
       real(dp), intent(in) :: zz
@@ -214,7 +214,7 @@ contains
   elemental function eberly_root(y0, y1, a, b, t0, lo0, hi0, early) result(t)
     real(dp), intent(in) :: y0, y1, a, b, t0, lo0, hi0
     logical, intent(in) :: early
-    real(dp) :: t, lo, hi, a2, b2, q0, q1, fv, dfv, tn
+    real(dp) :: t, lo, hi, a2, b2, q0, q1, fv, dfv, tn, i0, i1
     integer :: it
     logical :: newton
     a2 = a * a
@@ -224,9 +224,14 @@ contains
     t = t0
     if (.not. (t > lo .and. t < hi)) t = 0.5_dp * (lo + hi)
     do it = 1, geo_maxit
-      q0 = a * y0 / (t + a2)
-      q1 = b * y1 / (t + b2)
-      fv = q0 * q0 + q1 * q1 - 1.0_dp
+      ! F and F' with two divisions (1/(t + a2), 1/(t + b2)) instead of four
+      i0 = 1.0_dp / (t + a2)
+      i1 = 1.0_dp / (t + b2)
+      q0 = a * y0 * i0
+      q1 = b * y1 * i1
+      q0 = q0 * q0
+      q1 = q1 * q1
+      fv = q0 + q1 - 1.0_dp
       if (fv > 0.0_dp) then
         lo = t
       else if (fv < 0.0_dp) then
@@ -234,7 +239,7 @@ contains
       else
         exit
       end if
-      dfv = -2.0_dp * (q0 * q0 / (t + a2) + q1 * q1 / (t + b2))
+      dfv = -2.0_dp * (q0 * i0 + q1 * i1)
       tn = t - fv / dfv
       newton = tn > lo .and. tn < hi
       if (.not. newton) tn = 0.5_dp * (lo + hi)

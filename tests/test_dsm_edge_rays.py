@@ -239,7 +239,11 @@ def test_a_ray_that_bows_across_an_edge_or_a_wall_hits(interp, cell, lat_b, dg):
     previous build gave STEP_LIMIT, and on the 0.01-degree wall STEP_LIMIT after ~170 conversions
     (the wall split cut 1e-7 m off a segment's end each time). Against the first reviewer's
     brute-force reference: a hit, at most ~5 mm early (one ulp of latitude is crossed over mm of
-    such a grazing ray)."""
+    such a grazing ray). Late by as much: on the 0.01-degree wall the ray leaves the parallel at ~5.6e-7
+    rad, so one ulp of latitude (7e-10 m of ground) is 1.3 mm along it; a conversion with fewer
+    divisions (same accuracy: 2.1-2.3 ulp max against 120-bit arithmetic, the old 2.5) put this hit
+    0.21 mm after the reference's where the old one was before it (shin-park-notes 3a: -5.3 to
+    +3.9 mm on the review's 400 edge and wall rays)."""
     pole = np.sign(lat_b)
     if interp == "bilinear":
         h = np.full((3, 3), 1000.0)
@@ -262,7 +266,7 @@ def test_a_ray_that_bows_across_an_edge_or_a_wall_hits(interp, cell, lat_b, dg):
     win = min(20_000.0, back)
     kind, r_ref, _ = ref.ray_ref(surf, s, l, r0=back - win, r1=back + win, ds=win / 20_000.0)
     assert kind == "HIT"
-    assert -5e-3 < res.distance[0] - r_ref < 1e-6, res.distance[0] - r_ref
+    assert -5e-3 < res.distance[0] - r_ref < 5e-3, res.distance[0] - r_ref
     hh, hs = _surface_at(dsm, s, l, res.distance[0])
     assert hh <= hs
 
