@@ -57,6 +57,11 @@ module pi_dsm_exact
   !> in grid coordinates (cells) for which it applies
   integer, parameter :: chord_outside = -2, chord_cell = 1, chord_bound = 2, chord_nodata = 3
   real(dp), parameter :: chord_tol = 2.5e-16_dp
+  !> a segment's latitude bounds need den = M_min + min(h_low, 0) > 0 (|dlat/dr| = |l.north|/(M + h));
+  !> below den_min_frac M_min a segment gets no bound (it is split). It was 0.5, and the bottom of the
+  !> slab of a DSM with H_min < -M_min/2 was never bounded: on a 13 km body with heights down to -8 km,
+  !> 27-35 % of rays ended STEP_LIMIT (a review); docs/shin-park-notes.md, "Exact mode" 2
+  real(dp), parameter :: den_min_frac = 0.1_dp
 
   !> a point of the ray with what the bounds need
   type :: rpt_t
@@ -123,7 +128,7 @@ contains
     if (present(edge)) edge = .false.
     mmin = dsm%a * (1.0_dp - dsm%e2)                      ! smallest meridian radius of curvature
     den = mmin + min(hlow, 0.0_dp)
-    if (.not. (den > 0.5_dp * mmin)) return
+    if (.not. (den > den_min_frac * mmin)) return
     rho = axis_distance(s, l, pa%r, pb%r)
     if (.not. (rho > 1.0e-9_dp * dsm%a)) then
       ! within ~6 mm of the polar axis (a drone over the pole: every segment there was subdivided to
@@ -204,7 +209,7 @@ contains
     if (.not. (pa(3) * pb(3) > 0.0_dp)) return
     rho_max = max(hypot(pa(1), pa(2)), hypot(pb(1), pb(2)))
     den = dsm%a + min(hlow, 0.0_dp)
-    if (.not. (den > 0.5_dp * dsm%a)) return
+    if (.not. (den > den_min_frac * dsm%a)) return
     colat = 1.001_dp * rho_max / den + 1.0e-12_dp      ! >= asin(rho_max / den) for these small angles
     if (.not. (colat < 0.1_dp)) return
     if (pa(3) > 0.0_dp) then
@@ -562,7 +567,7 @@ contains
     hc = 0.0_dp
     llen = pb%r - pa%r
     den = dsm%a * (1.0_dp - dsm%e2) + min(hlow, 0.0_dp)
-    if (.not. (den > 0.5_dp * dsm%a * (1.0_dp - dsm%e2))) return
+    if (.not. (den > den_min_frac * dsm%a * (1.0_dp - dsm%e2))) return
     rho = axis_distance(s, l, pa%r, pb%r)
     if (.not. (rho > 1.0e-3_dp * dsm%a)) return
     lat2 = lat_second_bound(dsm, den, rho)

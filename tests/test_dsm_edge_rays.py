@@ -334,3 +334,55 @@ def test_a_ray_beside_a_no_data_node_line_hits_the_ground(eps):
     assert kind == "HIT"
     assert abs(res.distance[0] - r_ref) < 1e-6, res.distance[0] - r_ref
     assert abs(res.distance[0] - 360.811741) < 1e-3
+
+
+@pytest.mark.parametrize("interp", ["nearest", "bilinear"])
+def test_relief_deeper_than_half_the_radius(interp):
+    """A 13 km body (a sphere) whose DSM, a 1.2-degree patch, reaches from 8 km below the sphere to
+    9 km above it: the slab's bottom lies at 5 km from the centre. exact_ray bounded a segment's
+    latitude only while M_min + h_low > M_min / 2, so that bottom was never bounded and a review
+    found 27-35 % of rays STEP_LIMIT after ~100,000 conversions (~25 ms each; the fast path
+    declines on such slabs). The bound needs only M + h > 0 (|dlat/dr| = |l.north| / (M + h)); it now
+    applies above M_min / 10. Against the exhaustive reference (its own conversion and surface):
+    the same status on every ray, hits within 1e-6 m, LEFT_DSM points within the reference's own
+    tolerance on this H_max (below)."""
+    from references.dsm_exhaustive import HIT as X_HIT, LEFT_DSM as X_LEFT, exhaustive_first_hit
+
+    a, lat0, lon0, cell, n = 13_000.0, 30.0, 0.0, 0.006, 200
+    rng = np.random.default_rng(7)
+    y, x = np.mgrid[0:n, 0:n] / n
+    h = np.zeros((n, n))
+    for _ in range(5):
+        k = rng.uniform(0.5, 4.0, 2)
+        ph = rng.uniform(0, 2 * np.pi, 2)
+        h += np.sin(2 * np.pi * k[0] * x + ph[0]) * np.cos(2 * np.pi * k[1] * y + ph[1])
+    h = -8000.0 + 17_000.0 * (h - h.min()) / np.ptp(h)          # -8 km .. 9 km
+    for _ in range(4):                                           # blocks (walls) up to 9 km
+        i, j = rng.integers(0, n - 30, 2)
+        h[i:i + 30, j:j + 20] = np.minimum(h[i:i + 30, j:j + 20] + 3000.0, 9000.0)
+    dsm = GeodeticDSM.from_array(h, lat0, lon0, cell, cell, a=a, f=0.0, interpolation=interp)
+    # rays from 60-150 km at 0-60 degrees from the vertical, aimed at points of the patch's slab
+    m = 80
+    lat = lat0 + rng.uniform(-10, n + 10, m) * cell
+    lon = lon0 + rng.uniform(-10, n + 10, m) * cell
+    target = geodetic_to_ecef(lat, lon, rng.uniform(-8000.0, 9000.0, m), a, 0.0)
+    up = target / np.linalg.norm(target, axis=1, keepdims=True)
+    side = np.cross(up, rng.normal(size=(m, 3)))
+    side /= np.linalg.norm(side, axis=1, keepdims=True)
+    z = np.radians(rng.uniform(0.0, 60.0, m))[:, None]
+    d = np.cos(z) * up + np.sin(z) * side
+    s = target + rng.uniform(6.0e4, 1.5e5, m)[:, None] * d
+    l = -d
+    res = pi.intersect(dsm, s, l, method="exact", threads=1)
+    assert res.nsteps.max() < MAX_STEPS, res.nsteps.max()
+    ref = exhaustive_first_hit(h, lat0, lon0, cell, cell, s, l, a=a, f=0.0, interpolation=interp)
+    want = np.where(ref["status"] == X_HIT, DSMStatus.HIT, np.where(ref["status"] == X_LEFT, DSMStatus.LEFT_DSM, -1))
+    assert np.all(want >= 0)                                     # the reference gives only these two here
+    np.testing.assert_array_equal(res.status, want)
+    hit = want == DSMStatus.HIT
+    assert 15 <= hit.sum() <= m - 15                             # both kinds, in numbers
+    assert np.all(np.abs(res.distance[hit] - ref["r"][hit]) < 1e-6)
+    # LEFT_DSM here is the H_max crossing outside the patch; the reference accepts that crossing
+    # where h - H_max <= 1e-9 H_max (9e-6 m at 9 km): up to ~1.3e-5 m early along these rays (one
+    # ray 1.08e-5 m, where the exact point is 3.6e-12 m above H_max)
+    assert np.all(np.abs(res.event_distance[~hit] - ref["r"][~hit]) < 2e-5)
