@@ -569,7 +569,7 @@ contains
     den = dsm%a * (1.0_dp - dsm%e2) + min(hlow, 0.0_dp)
     if (.not. (den > den_min_frac * dsm%a * (1.0_dp - dsm%e2))) return
     rho = axis_distance(s, l, pa%r, pb%r)
-    if (.not. (rho > 1.0e-3_dp * dsm%a)) return
+    if (.not. (rho > 1.0e-6_dp * dsm%a)) return
     lat2 = lat_second_bound(dsm, den, rho)
     cmom = abs(s(1) * l(2) - s(2) * l(1))
     dlat_r = 0.125_dp * lat2 * llen**2                    ! radians

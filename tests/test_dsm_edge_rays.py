@@ -386,3 +386,37 @@ def test_relief_deeper_than_half_the_radius(interp):
     # where h - H_max <= 1e-9 H_max (9e-6 m at 9 km): up to ~1.3e-5 m early along these rays (one
     # ray 1.08e-5 m, where the exact point is 3.6e-12 m above H_max)
     assert np.all(np.abs(res.event_distance[~hit] - ref["r"][~hit]) < 2e-5)
+
+
+@pytest.mark.parametrize("interp", ["nearest", "bilinear"])
+@pytest.mark.parametrize("pole", [-90.0, 90.0])
+def test_nadir_rays_beside_a_wall_near_a_pole(interp, pole):
+    """A polar wedge of 1 m rows (400 x 200 cells of 8.98e-6 x 0.05 degrees from the pole, what a
+    lunar or Martian polar DEM warped to a geodetic grid looks like) seen straight down its
+    ellipsoid normals from 171 km. A review's nadir ray 344 m from the pole and 15 um (1.5e-5 rows)
+    beside a row boundary ended STEP_LIMIT after ~100,000 conversions: near the axis a segment's
+    latitude widening (the north vector turns at up to 1/rho) kept the next row in its box down to
+    refine_tol, and the chord rule (which bounds the path's departure from its chord instead) was
+    off within 1e-3 a (6.4 km) of the axis. Its bounds hold for any axis distance rho > 0; it now
+    applies beyond 1e-6 a (6.4 m). Along a normal line latitude and longitude are constant and h
+    falls one for one, so the hit is at 171 km - H(lat, lon), H from the grid by hand."""
+    dlat, lon0, dlon = 8.98311174991017e-06, -170.0, 0.05
+    sgn = 1.0 if pole < 0 else -1.0                     # rows run away from the pole
+    rng = np.random.default_rng(5 if pole < 0 else 6)
+    h = rng.uniform(0.0, 30.0, (400, 200))
+    dsm = GeodeticDSM.from_array(h, pole, lon0, sgn * dlat, dlon, interpolation=interp)
+    u = 165.049434214
+    for v in (344.5 + 1.5e-5, 344.5 - 1.5e-5, 100.5 + 3e-6, 20.5 + 1e-5, 2.5 + 1e-5, 344.0):
+        lat, lon = pole + sgn * v * dlat, lon0 + u * dlon
+        top, foot = geodetic_to_ecef(lat, lon, 171_000.0), geodetic_to_ecef(lat, lon, 0.0)
+        length = np.linalg.norm(foot - top)
+        res = pi.intersect(dsm, top[None], ((foot - top) / length)[None], method="exact", threads=1)
+        if interp == "nearest":
+            H = h[int(np.floor(v + 0.5)), int(np.floor(u + 0.5))]
+        else:
+            i, j = int(np.floor(v)), int(np.floor(u))
+            fv, fu = v - i, u - j
+            H = ((1 - fv) * ((1 - fu) * h[i, j] + fu * h[i, j + 1]) + fv * ((1 - fu) * h[i + 1, j] + fu * h[i + 1, j + 1]))
+        assert res.status[0] == DSMStatus.HIT, (v, res.status[0], res.nsteps[0])
+        assert res.nsteps[0] < MAX_STEPS, (v, res.nsteps[0])
+        assert abs(res.distance[0] - (length - H)) < 1e-6, (v, res.distance[0] - (length - H))
