@@ -210,7 +210,9 @@ contains
     rho_max = max(hypot(pa(1), pa(2)), hypot(pb(1), pb(2)))
     den = dsm%a + min(hlow, 0.0_dp)
     if (.not. (den > den_min_frac * dsm%a)) return
-    colat = 1.001_dp * rho_max / den + 1.0e-12_dp      ! >= asin(rho_max / den) for these small angles
+    ! >= asin(rho_max / den) (cos(lat) = rho / (N + h) <= rho_max / den); it was 1.001 rho_max / den, which
+    ! is below asin above 0.0775 rad, where the box was up to 6.6e-5 rad narrow on a sphere (a review)
+    colat = (1.0_dp + 1.0e-12_dp) * asin(min(1.0_dp, rho_max / den)) + 1.0e-12_dp
     if (.not. (colat < 0.1_dp)) return
     if (pa(3) > 0.0_dp) then
       lat_lo = 0.5_dp * pi - colat
