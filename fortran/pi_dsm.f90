@@ -24,7 +24,8 @@ module pi_dsm
   implicit none
   private
 
-  public :: dsm_t, dsm_attach, dsm_height, dsm_grid_uv, dsm_cells, dsm_box_bound, dsm_cell_metres, range_max
+  public :: dsm_t, dsm_attach, dsm_height, dsm_grid_uv, dsm_cells, dsm_box_bound, dsm_box_bound_wrapped, &
+            dsm_cell_metres, range_max
   public :: interp_bilinear, interp_nearest, pt_ok, pt_outside, pt_nodata
 
   !> interpolation codes
@@ -315,6 +316,48 @@ contains
       end if
     end function bilinear_part
   end subroutine dsm_box_bound
+
+  !> dsm_box_bound for a box whose column range [u0, u1] was unwrapped from one point's u (a
+  !> segment's longitudes: u0 <= u1, less than a turn wide). dsm_grid_uv wraps longitude to within
+  !> pi of the grid's centre (u in [uw, uw + T), uw = (lonc - pi - lon0)/dlon, T = 2 pi/dlon), so on a
+  !> regional grid the part of the box past uw + T lies at u - T (and the part before uw at u + T):
+  !> both parts are bounded (hb the larger, out if either is partly outside). A global grid's box
+  !> wraps in dsm_box_bound itself. A segment across the wrap meridian (a regional grid spanning
+  !> nearly 360 degrees: a polar cap short of a full ring) had only its first part bounded, and a
+  !> ray crossing the gap into the grid's other edge was answered late or LEFT_DSM (a review:
+  !> 123 m late on a 350-degree wedge; docs/shin-park-notes.md, "Sixth look").
+  pure subroutine dsm_box_bound_wrapped(dsm, u0, u1, v0, v1, hb, out)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: u0, u1, v0, v1
+    real(dp), intent(out) :: hb
+    logical, intent(out) :: out
+    real(dp) :: uw, turn, hb2
+    logical :: out2
+    if (dsm%global) then
+      call dsm_box_bound(dsm, u0, u1, v0, v1, hb, out)
+      return
+    end if
+    turn = 2.0_dp * pi / dsm%dlon
+    uw = (dsm%lonc - pi - dsm%lon0) / dsm%dlon
+    if (u1 > uw + turn .and. u0 < uw + turn) then
+      call dsm_box_bound(dsm, u0, uw + turn, v0, v1, hb, out)
+      call dsm_box_bound(dsm, uw, u1 - turn, v0, v1, hb2, out2)
+    else if (u0 < uw .and. u1 > uw) then
+      call dsm_box_bound(dsm, uw, u1, v0, v1, hb, out)
+      call dsm_box_bound(dsm, u0 + turn, uw + turn, v0, v1, hb2, out2)
+    else if (u0 >= uw + turn) then
+      call dsm_box_bound(dsm, u0 - turn, u1 - turn, v0, v1, hb, out)
+      return
+    else if (u1 <= uw) then
+      call dsm_box_bound(dsm, u0 + turn, u1 + turn, v0, v1, hb, out)
+      return
+    else
+      call dsm_box_bound(dsm, u0, u1, v0, v1, hb, out)
+      return
+    end if
+    hb = max(hb, hb2)
+    out = out .or. out2
+  end subroutine dsm_box_bound_wrapped
 
   !> Maximum of the bilinear surface over [u0, u1] x [v0, v1] (inside the grid),
   !> whose node range is rows i0..i1, columns j0..j1: per cell, the largest of

@@ -28,7 +28,8 @@ module pi_dsm_exact
   use pi_kinds, only: dp
   use pi_status
   use pi_vector, only: pi, axis_distance, far_distance
-  use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_cells, dsm_box_bound, interp_nearest, pt_ok, &
+  use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_cells, dsm_box_bound, dsm_box_bound_wrapped, &
+                    interp_nearest, pt_ok, &
                     pt_outside, pt_nodata, range_max
   use pi_follow, only: dsm_ray_t, follow_ray, iterate_ray, ray_geo, level_crossing, level_crossing_back, &
                        set_hit, set_event, settle_start, refine_tol, newton_tol
@@ -158,7 +159,7 @@ contains
     wu = 1.0e-9_dp + 8.0_dp * spacing(pi) / dsm%dlon
     u0 = min(pa%u, pa%u + du / dsm%dlon) - wu
     u1 = max(pa%u, pa%u + du / dsm%dlon) + wu
-    call dsm_box_bound(dsm, u0, u1, v0, v1, hb, out)
+    call dsm_box_bound_wrapped(dsm, u0, u1, v0, v1, hb, out)   ! (past the wrap meridian: pi_dsm)
     if (present(edge) .and. out) then
       gv = 2.0_dp * w / abs(dsm%dlat)                     ! twice the margins, in cells
       lo = 0.0_dp
@@ -248,7 +249,7 @@ contains
       w = (modulo(lon_a - dsm%lonc + pi, 2.0_dp * pi) - pi + (dsm%lonc - dsm%lon0)) / dsm%dlon   ! u(lon_a)
       u0 = w + (min(dlam, 0.0_dp) - elam) / dsm%dlon - 8.0_dp * spacing(pi) / dsm%dlon - 1.0e-9_dp
       u1 = w + (max(dlam, 0.0_dp) + elam) / dsm%dlon + 8.0_dp * spacing(pi) / dsm%dlon + 1.0e-9_dp
-      call dsm_box_bound(dsm, u0, u1, v0, v1, hb, out)
+      call dsm_box_bound_wrapped(dsm, u0, u1, v0, v1, hb, out)   ! (past the wrap meridian: pi_dsm)
       ! a bilinear band inside one row of cells across more than two columns: dsm_box_bound takes
       ! the node rows' maximum, which holds the next row's heights, and a ray within ~2e-9 m of the
       ! axis (a nadir view of the pole) never got its segments ruled out (STEP_LIMIT, a review);
@@ -256,7 +257,9 @@ contains
       ! largest value over the box is at v0 or v1 on a node column from floor(u0) to ceiling(u1)
       ! (u0, u1 clamped to +-2 ncols before the integer conversion: a global grid's stay inside, and
       ! a regional grid's columns are clamped to the grid anyway)
-      if (dsm%interp /= interp_nearest .and. hb < huge(1.0_dp)) &
+      ! (not across a regional grid's wrap meridian, whose columns it would clamp instead of wrap)
+      if (dsm%interp /= interp_nearest .and. hb < huge(1.0_dp) .and. (dsm%global .or. &
+          (u0 >= (dsm%lonc - pi - dsm%lon0) / dsm%dlon .and. u1 <= (dsm%lonc + pi - dsm%lon0) / dsm%dlon))) &
         hb = min(hb, band_columns(floor(max(u0, -2.0_dp * dsm%ncols)), ceiling(min(u1, 2.0_dp * dsm%ncols))))
       return
     end if
@@ -585,6 +588,10 @@ contains
     if (.not. (dev_u < 0.25_dp .and. dev_v < 0.25_dp)) return
     ! pb's u on pa's side of the wrap (longitude is continuous along the segment)
     ub = pa%u + (modulo(pb%lon - pa%lon + pi, 2.0_dp * pi) - pi) / dsm%dlon
+    ! past a regional grid's wrap meridian (lonc +- pi) pb lies one turn back in u: no rule (its
+    ! "beyond the edge" took a ray across a 350-degree wedge's gap as outside: a review)
+    if (.not. dsm%global .and. .not. (ub > (dsm%lonc - pi - dsm%lon0) / dsm%dlon .and. &
+                                      ub < (dsm%lonc + pi - dsm%lon0) / dsm%dlon)) return
     call point_class(dsm, pa%u, pa%v, fa, ia, ja)
     call point_class(dsm, ub, pb%v, fb, ib, jb)
     common = iand(fa, fb)

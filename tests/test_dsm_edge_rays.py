@@ -420,3 +420,44 @@ def test_nadir_rays_beside_a_wall_near_a_pole(interp, pole):
         assert res.status[0] == DSMStatus.HIT, (v, res.status[0], res.nsteps[0])
         assert res.nsteps[0] < MAX_STEPS, (v, res.nsteps[0])
         assert abs(res.distance[0] - (length - H)) < 1e-6, (v, res.distance[0] - (length - H))
+
+
+@pytest.mark.parametrize("interp", ["nearest", "bilinear"])
+def test_rays_across_the_gap_of_a_wedge_short_of_a_full_turn(interp):
+    """A regional grid spanning 350 degrees (35 columns of 10 degrees, 5 m rows from the north pole):
+    the wrap meridian of its longitudes (its centre's antimeridian) lies in the 10-degree gap. Rays
+    that pass near the pole eastward across the gap and come down onto column 0 (30 m high, the rest
+    0 m): exact_ray bounded a segment across that meridian only up to it (the rest, one turn back in
+    u, was taken as beyond the grid's edge) and a review found hits 123 m late and LEFT_DSM where the
+    ray hits. Checked against sampling every centimetre (the reference's own conversion, the package's
+    lookup): the answer is inside the surface and no sample before it is."""
+    from references import geodesy as gd
+
+    h = np.zeros((400, 35))
+    h[:, 0] = 30.0
+    if interp == "bilinear":
+        h[:, 1] = 30.0
+    mdeg = 1.0 / 111_000.0
+    dsm = GeodeticDSM.from_array(h, 90.0, -170.0, -5.0 * mdeg, 10.0, interpolation=interp)
+    S, L = [], []
+    for rho0 in (10.0, 50.0, 300.0, 1000.0):
+        for slope in (3.0, 6.0, 12.0):
+            for lamc in (177.0, 180.0):
+                lam = np.radians(lamc)
+                east = np.array([-np.sin(lam), np.cos(lam), 0.0])
+                q = geodetic_to_ecef(90.0 - rho0 * mdeg, lamc, 30.5)
+                d = east - slope / rho0 * np.array([0.0, 0.0, 1.0])
+                d /= np.linalg.norm(d)
+                S.append(q - 3.0 * rho0 * d)
+                L.append(d)
+    S, L = np.array(S), np.array(L)
+    res = pi.intersect(dsm, S, L, method="exact", threads=1)
+    assert np.all(res.status == DSMStatus.HIT), res.status
+    assert res.nsteps.max() < MAX_STEPS
+    for k in range(len(S)):
+        r = np.arange(0.0, res.distance[k], 0.01)
+        lat, lon, hh = gd.ecef_to_geodetic(S[k] + r[:, None] * L[k])
+        H = dsm.height(lat, lon)
+        assert not np.any(hh[:-1] <= H[:-1] - 1e-9), (k, r[np.argmax(hh <= H)], res.distance[k])   # nothing before
+        lat, lon, hh = gd.ecef_to_geodetic(S[k] + (res.distance[k] + 1e-6) * L[k])
+        assert hh <= dsm.height(lat, lon) + 1e-9, k                                                # inside there
