@@ -60,6 +60,9 @@ module pi_dsm
     !> ecr_to_geodetic_near, which converts points within 0.01 rad of it exactly without
     !> atan2 (pi_dsm_fast's first conversion of a ray; docs/shin-park-notes.md, "Fast exact path")
     real(dp) :: clat = 0, clon = 0, cnx = 1, cny = 0, cnz = 0
+    !> dsm_grid_uv wraps longitude into [lonc - pi, lonc + pi): u lies in [uw, uw + uturn), uw the
+    !> column coordinate of lonc - pi and uturn = 2 pi/dlon columns (dsm_box_bound_wrapped)
+    real(dp) :: uw = 0, uturn = 0
   end type dsm_t
 
 contains
@@ -101,6 +104,8 @@ contains
     dsm%cnx = cos(dsm%clat) * cos(dsm%clon)
     dsm%cny = cos(dsm%clat) * sin(dsm%clon)
     dsm%cnz = sin(dsm%clat)
+    dsm%uturn = 2.0_dp * pi / dlon
+    dsm%uw = (dsm%lonc - pi - lon0) / dlon
   end subroutine dsm_attach
 
   !> Continuous grid coordinates of (lat, lon): u = column, v = row (0-based,
@@ -319,7 +324,7 @@ contains
 
   !> dsm_box_bound for a box whose column range [u0, u1] was unwrapped from one point's u (a
   !> segment's longitudes: u0 <= u1, less than a turn wide). dsm_grid_uv wraps longitude to within
-  !> pi of the grid's centre (u in [uw, uw + T), uw = (lonc - pi - lon0)/dlon, T = 2 pi/dlon), so on a
+  !> pi of the grid's centre (u in [uw, uw + T), dsm_t's uw and T = uturn), so on a
   !> regional grid the part of the box past uw + T lies at u - T (and the part before uw at u + T):
   !> both parts are bounded (hb the larger, out if either is partly outside). A global grid's box
   !> wraps in dsm_box_bound itself. A segment across the wrap meridian (a regional grid spanning
@@ -337,8 +342,8 @@ contains
       call dsm_box_bound(dsm, u0, u1, v0, v1, hb, out)
       return
     end if
-    turn = 2.0_dp * pi / dsm%dlon
-    uw = (dsm%lonc - pi - dsm%lon0) / dsm%dlon
+    turn = dsm%uturn
+    uw = dsm%uw
     if (u1 > uw + turn .and. u0 < uw + turn) then
       call dsm_box_bound(dsm, u0, uw + turn, v0, v1, hb, out)
       call dsm_box_bound(dsm, uw, u1 - turn, v0, v1, hb2, out2)

@@ -259,7 +259,7 @@ contains
       ! a regional grid's columns are clamped to the grid anyway)
       ! (not across a regional grid's wrap meridian, whose columns it would clamp instead of wrap)
       if (dsm%interp /= interp_nearest .and. hb < huge(1.0_dp) .and. (dsm%global .or. &
-          (u0 >= (dsm%lonc - pi - dsm%lon0) / dsm%dlon .and. u1 <= (dsm%lonc + pi - dsm%lon0) / dsm%dlon))) &
+          (u0 >= dsm%uw .and. u1 <= dsm%uw + dsm%uturn))) &
         hb = min(hb, band_columns(floor(max(u0, -2.0_dp * dsm%ncols)), ceiling(min(u1, 2.0_dp * dsm%ncols))))
       return
     end if
@@ -590,8 +590,7 @@ contains
     ub = pa%u + (modulo(pb%lon - pa%lon + pi, 2.0_dp * pi) - pi) / dsm%dlon
     ! past a regional grid's wrap meridian (lonc +- pi) pb lies one turn back in u: no rule (its
     ! "beyond the edge" took a ray across a 350-degree wedge's gap as outside: a review)
-    if (.not. dsm%global .and. .not. (ub > (dsm%lonc - pi - dsm%lon0) / dsm%dlon .and. &
-                                      ub < (dsm%lonc + pi - dsm%lon0) / dsm%dlon)) return
+    if (.not. dsm%global .and. .not. (ub > dsm%uw .and. ub < dsm%uw + dsm%uturn)) return
     call point_class(dsm, pa%u, pa%v, fa, ia, ja)
     call point_class(dsm, ub, pb%v, fb, ib, jb)
     common = iand(fa, fb)
