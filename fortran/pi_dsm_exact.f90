@@ -201,7 +201,7 @@ contains
     real(dp), intent(out) :: hb
     logical, intent(out) :: out
     real(dp) :: pa(3), pb(3), rho_max, den, colat, lat_lo, lat_hi, v0, v1, w, lo
-    real(dp) :: dlam, elam, u0, u1
+    real(dp) :: dlam, elam, u0, u1, vd
     integer :: i0, i1, j, cw
     hb = huge(1.0_dp)
     out = .true.
@@ -246,7 +246,7 @@ contains
     end if
     dlam = modulo(lon_b - lon_a + pi, 2.0_dp * pi) - pi
     if (elam >= 0.0_dp .and. abs(dlam) + elam < 0.25_dp * pi) then
-      w = (modulo(lon_a - dsm%lonc + pi, 2.0_dp * pi) - pi + (dsm%lonc - dsm%lon0)) / dsm%dlon   ! u(lon_a)
+      call dsm_grid_uv(dsm, 0.0_dp, lon_a, w, vd)                 ! w = u(lon_a)
       u0 = w + (min(dlam, 0.0_dp) - elam) / dsm%dlon - 8.0_dp * spacing(pi) / dsm%dlon - 1.0e-9_dp
       u1 = w + (max(dlam, 0.0_dp) + elam) / dsm%dlon + 8.0_dp * spacing(pi) / dsm%dlon + 1.0e-9_dp
       call dsm_box_bound_wrapped(dsm, u0, u1, v0, v1, hb, out)   ! (past the wrap meridian: pi_dsm)
