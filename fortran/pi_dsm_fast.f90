@@ -21,6 +21,10 @@
 !> becomes a sub-piece with exact ends (tangent bound within ~1e-7 m of h),
 !> where a "nearest" cell is solved by Newton and a bilinear cell's candidate
 !> entry in closed form (a quadratic), then classified by one conversion.
+!> A certified ray's first piece (fast_from, after pi_dsm_sweep) has one exact
+!> end: its far end is a first-order model (tangent_end), its (u, v) models
+!> widened by the remainder from one end, converted only when the search goes
+!> past it (docs/shin-park-notes.md, "Seventh look").
 !>
 !> The fast path declines (ok = .false.; the caller then runs exact_ray) when
 !> its assumptions do not hold: a slab longer than fast_maxlen, a latitude or
@@ -64,6 +68,12 @@ module pi_dsm_fast
   integer, parameter :: fast_maxseg = 20000, fast_depth = 128
   !> what a refine_tol leaf counts toward fast_maxseg (so at most ~200 leaves before the decline)
   integer, parameter :: fast_leaf = 100
+  !> segments a certified ray's one-ended first piece may take (fast_from) before it is searched
+  !> again with an exact far end (a ray takes ~5-20 there; a leaf counts fast_leaf)
+  integer, parameter :: fast_onebudget = 250
+  !> largest (u, v) widening of a one-ended piece (grid cells; ~2e-5 on a 9 degree ray over 1 m cells
+  !> on Earth, ~0.3 over 10 m cells of a 13 km body, where it cost more segments than it saved)
+  real(dp), parameter :: fast_onedv = 1.0e-3_dp
   !> conversions after which the fast path declines: rays aimed within ~1e-8 deg of a cell corner
   !> took 3,800-6,300 here where exact_ray needs 19-43 (a review); a benchmark ray takes ~6
   integer, parameter :: fast_maxconv = 1000
@@ -88,6 +98,8 @@ module pi_dsm_fast
     type(xpt_t) :: a, b
     real(dp) :: dv, du, hmarg
     real(dp) :: ilen = 0, rk = 0, tk = 0, ida = 0, idb = 0
+    !> b is an exact ray point (.false.: tangent_end's model end; eval_p then converts there)
+    logical :: bx = .true.
   end type piece_t
 
 contains
@@ -159,6 +171,38 @@ contains
     call dsm_grid_uv(dsm, q%lat, q%lon, q%u, q%v)
   end subroutine extrapolate
 
+  !> The far end of a one-ended piece: the point len (> 0) after the exact point x
+  !> on the first-order models of extrapolate (latitude and longitude; u, v from
+  !> them), with h and h' of x's tangent, without a conversion. It is not the ray
+  !> point there: make_piece (one = .true.) widens the piece's (u, v) models by
+  !> the models' remainders from one end, |psi''| len^2 / 2 and |lambda''| len^2 / 2
+  !> (<= len^2 / rho^2), and eval_p converts instead of returning it; its tangent
+  !> is x's, a lower bound of h everywhere (convexity), so h_lower and
+  !> clear_prefix hold as they are. ok = .false. (q not set) within 1e-3 rad of
+  !> a pole or when len is not positive and finite.
+  pure subroutine tangent_end(dsm, l, x, len, q, ok)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: l(3), len
+    type(xpt_t), intent(in) :: x
+    type(xpt_t), intent(out) :: q
+    logical, intent(out) :: ok
+    real(dp) :: cp, w, mm, nn, ln, le
+    cp = sqrt(x%nx**2 + x%ny**2)                            ! cos(latitude)
+    ok = len > 0.0_dp .and. len < huge(1.0_dp) .and. cp > 1.0e-3_dp
+    if (.not. ok) return
+    w = 1.0_dp - dsm%e2 * x%nz**2
+    nn = dsm%a / sqrt(w)
+    mm = nn * (1.0_dp - dsm%e2) / w
+    ln = (-x%nz * (l(1) * x%nx + l(2) * x%ny)) / cp + l(3) * cp      ! l . north, l . east (extrapolate)
+    le = (-l(1) * x%ny + l(2) * x%nx) / cp
+    q = x
+    q%r = x%r + len
+    q%lat = x%lat + len * ln / (mm + x%h)                   ! dpsi/dr = (l.north)/(M + h)
+    q%lon = x%lon + len * le / ((nn + x%h) * cp)            ! dlambda/dr = (l.east)/rho
+    q%h = x%h + len * x%dh                                  ! the tangent: below h (convexity)
+    call dsm_grid_uv(dsm, q%lat, q%lon, q%u, q%v)
+  end subroutine tangent_end
+
   !> Exact ray point at r, reusing the piece's exact end when r is one of
   !> them (the same conversion: bit-identical); n counts conversions made.
   pure subroutine eval_p(dsm, s, l, pc, r, q, n)
@@ -169,7 +213,7 @@ contains
     integer, intent(inout) :: n
     if (r == pc%a%r) then
       q = pc%a
-    else if (r == pc%b%r) then
+    else if (r == pc%b%r .and. pc%bx) then
       q = pc%b
     else
       call eval_x(dsm, s, l, r, q, pc%a)
@@ -564,15 +608,29 @@ contains
   end subroutine piece_ends
 
   !> Build piece [xa, xb]: its latitude widening in grid rows (ok = .false.
-  !> when the bound does not apply or exceeds fast_maxdv).
-  pure subroutine make_piece(dsm, s, l, xa, xb, pc, ok)
+  !> when the bound does not apply or exceeds fast_maxdv). one = .true.: xb is
+  !> tangent_end's model end, not an exact point (pc%bx = .false.).
+  pure subroutine make_piece(dsm, s, l, xa, xb, pc, ok, one)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: s(3), l(3)
     type(xpt_t), intent(in) :: xa, xb
     type(piece_t), intent(out) :: pc
     logical, intent(out) :: ok
-    real(dp) :: mmin, den, rho, psi2, len
+    logical, intent(in), optional :: one
+    real(dp) :: mmin, den, rho, psi2, len, flat, flon
     call piece_ends(xa, xb, pc)
+    ! the models' error: linear interpolation between two exact ends, psi'' L^2/8 and
+    ! lambda'' L^2/8 (<= L^2/(4 rho^2)); the first-order model from one end (tangent_end),
+    ! psi'' L^2/2 and lambda'' L^2/2 (<= L^2/rho^2)
+    flat = 0.125_dp
+    flon = 0.25_dp
+    if (present(one)) then
+      if (one) then
+        pc%bx = .false.
+        flat = 0.5_dp
+        flon = 1.0_dp
+      end if
+    end if
     pc%dv = huge(1.0_dp)
     pc%hmarg = fast_hmarg * dsm%a
     ok = .false.
@@ -585,11 +643,14 @@ contains
     if (.not. (rho > 1.0e-3_dp * dsm%a)) return
     psi2 = lat_second_bound(dsm, den, rho)                    ! |psi''|
     ! interpolation error psi2 L^2 / 8 and rounding of the exact latitudes
-    pc%dv = (0.125_dp * psi2 * len * len + fast_latmarg * (1.0_dp + abs(xa%lat) + abs(xb%lat))) / abs(dsm%dlat)
+    pc%dv = (flat * psi2 * len * len + fast_latmarg * (1.0_dp + abs(xa%lat) + abs(xb%lat))) / abs(dsm%dlat)
     ! longitude along a line: rho^2 lambda' is constant, so |lambda''| = 2 |lambda' rho'| / rho <= 2 / rho^2;
-    ! linear interpolation error <= L^2 / (4 rho^2)
-    pc%du = (0.25_dp * (len / rho)**2 + fast_latmarg * (1.0_dp + pi)) / dsm%dlon
+    ! linear interpolation error <= L^2 / (4 rho^2) (from one end: L^2 / rho^2)
+    pc%du = (flon * (len / rho)**2 + fast_latmarg * (1.0_dp + pi)) / dsm%dlon
     ok = pc%dv <= fast_maxdv .and. pc%du <= fast_maxdv .and. abs(xb%u - xa%u) < 0.25_dp * pi / dsm%dlon
+    ! a one-ended piece only with widenings below fast_onedv (speed: wider boxes straddle more cell
+    ! boundaries; the caller then builds the piece with an exact end)
+    if (.not. pc%bx) ok = ok .and. pc%dv <= fast_onedv .and. pc%du <= fast_onedv
   end subroutine make_piece
 
   !> A bound of |psi''|, the second derivative of geodetic latitude along a straight line, on a
@@ -712,9 +773,9 @@ contains
     type(dsm_ray_t), intent(inout) :: res
     logical, intent(out) :: ok, used
     type(xpt_t) :: x_in, x1, x_end
-    real(dp) :: hs, len1, cell, hor, r_end
+    real(dp) :: hs, len1, cell, hor, r_end, den
     integer :: code, outcome, nseg
-    logical :: done
+    logical :: done, tok
     ok = .true.
     used = .false.
     if (.not. (rc > 0.0_dp .and. rc < huge(1.0_dp))) return
@@ -730,14 +791,33 @@ contains
     len1 = min(1.5_dp * cell / max(hor, 0.05_dp), (1.0_dp - 1.0e-9_dp) * (x_in%h - dsm%hmin) / (-x_in%dh))
     x1 = x_in
     if (len1 > 10.0_dp * refine_tol) then
-      call eval_x(dsm, s, l, rc + len1, x1, x_in)
-      res%nsteps = res%nsteps + 1
-      nseg = 0
-      call search_piece(dsm, s, l, x_in, x1, rc, 1, res, outcome, nseg)
+      ! first as a one-ended piece (its far end tangent_end's model: no conversion), which holds the
+      ! answer of most rays; its end is converted only when the search goes on past it. Only where
+      ! its tangent bound stays within refine_tol / 2 of h ((hor len1)^2 / (2 den), h'' <= hor^2/den):
+      ! on coarse cells or small bodies the looser bound costs more classifications than it saves
+      ! (a review: 13 km body, 10 m cells, 192 -> 219 conversions a ray; 26 -> 42 on its nadir
+      ! bilinear rays with 10 refine_tol here). Only speed depends on it.
+      ! It gets a budget of fast_onebudget segments (a leaf counts fast_leaf): past it (rays along a
+      ! wall or a grid line within the wider boxes' margins) the piece is searched again with an
+      ! exact end, as before (a review: corner fans 63 -> 101 conversions a ray without the budget).
+      nseg = fast_maxseg - fast_onebudget
+      outcome = out_declined
+      den = dsm%a * (1.0_dp - dsm%e2) + min(dsm%hmin, 0.0_dp)
+      tok = .false.
+      if (den > 0.0_dp) tok = (hor * len1)**2 <= refine_tol * den
+      if (tok) call tangent_end(dsm, l, x_in, len1, x1, tok)
+      if (tok) call search_piece(dsm, s, l, x_in, x1, rc, 1, res, outcome, nseg, .true.)
       if (outcome == out_decided) return
+      call eval_x(dsm, s, l, rc + len1, x1, x_in)       ! clear (go on from its end), or not applicable
+      res%nsteps = res%nsteps + 1
       if (outcome == out_declined) then
-        ok = .false.
-        return
+        nseg = 0
+        call search_piece(dsm, s, l, x_in, x1, rc, 1, res, outcome, nseg)
+        if (outcome == out_decided) return
+        if (outcome == out_declined) then
+          ok = .false.
+          return
+        end if
       end if
     end if
     call slab_end(dsm, s, l, x1%r, x_end, r_end, res%nsteps)
@@ -839,8 +919,9 @@ contains
   !> cannot be ruled out and is at most fast_sub long is searched as a piece of
   !> its own (level 2: exact ends, so its tangent bound is within
   !> fast_sub^2 / (8 M_min) of h). outcome: out_clear (nothing on the piece),
-  !> out_decided (res holds the hit or no-data event), out_declined.
-  recursive pure subroutine search_piece(dsm, s, l, xa, xb, rs, level, res, outcome, nseg)
+  !> out_decided (res holds the hit or no-data event), out_declined. one = .true.:
+  !> xb is tangent_end's model end (make_piece's one-ended piece).
+  recursive pure subroutine search_piece(dsm, s, l, xa, xb, rs, level, res, outcome, nseg, one)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: s(3), l(3)
     !> where the search starts (xa%r <= rs < xb%r: [xa%r, rs) is not searched)
@@ -850,6 +931,7 @@ contains
     type(dsm_ray_t), intent(inout) :: res
     integer, intent(out) :: outcome
     integer, intent(inout) :: nseg
+    logical, intent(in), optional :: one
     type(piece_t) :: pc
     type(xpt_t) :: xc, xd
     type(lpt_t) :: pa, pb, pm, stack(fast_depth)
@@ -857,7 +939,7 @@ contains
     logical :: found, pok, near
     integer :: code, nst, it, cell, sub, cst
     outcome = out_declined
-    call make_piece(dsm, s, l, xa, xb, pc, pok)
+    call make_piece(dsm, s, l, xa, xb, pc, pok, one)
     if (.not. pok) return
     pa = to_l(xa)
     if (rs > xa%r) call eval_l(pc, rs, pa)
