@@ -149,19 +149,13 @@ contains
     type(xpt_t), intent(in) :: x
     type(xpt_t), intent(out) :: q
     logical, intent(out) :: ok
-    real(dp) :: d, cp, w, mm, nn, ln, le
+    real(dp) :: d, cp, mm, nn, ln, le
     d = r - x%r
-    cp = sqrt(x%nx**2 + x%ny**2)                            ! cos(latitude)
-    w = 1.0_dp - dsm%e2 * x%nz**2
-    nn = dsm%a / sqrt(w)                                    ! prime vertical radius of curvature
+    call local_rates(dsm, l, x, cp, nn, mm, ln, le)
     ! d at most 1e-8 of the axis distance rho = (N + h) cos(lat) too: the longitude's second-order
     ! term grows as d^2 / rho^2 (a review measured 7.7e-13 rad 6 km from the pole with d = 1e-8 a)
     ok = d >= 0.0_dp .and. d <= 1.0e-8_dp * min(dsm%a, (nn + x%h) * cp) .and. cp > 1.0e-3_dp
     if (.not. ok) return
-    mm = nn * (1.0_dp - dsm%e2) / w                         ! meridian radius of curvature
-    ! north = (-sin psi cos lambda, -sin psi sin lambda, cos psi), east = (-sin lambda, cos lambda, 0)
-    ln = (-x%nz * (l(1) * x%nx + l(2) * x%ny)) / cp + l(3) * cp
-    le = (-l(1) * x%ny + l(2) * x%nx) / cp
     q = x
     q%r = r
     q%lat = x%lat + d * ln / (mm + x%h)
@@ -170,6 +164,30 @@ contains
     q%dh = x%dh + d * (1.0_dp - x%dh**2) / (nn + x%h)
     call dsm_grid_uv(dsm, q%lat, q%lon, q%u, q%v)
   end subroutine extrapolate
+
+  !> At the exact point x: cos(latitude) cp (from the normal), the prime vertical and
+  !> meridian radii of curvature nn and mm, and the components ln = l.north, le = l.east
+  !> of the ray's direction (north = (-sin psi cos lambda, -sin psi sin lambda, cos psi),
+  !> east = (-sin lambda, cos lambda, 0)); shared by extrapolate and tangent_end. ln and le
+  !> are not used (and may be huge or NaN) when cp is 0.
+  pure subroutine local_rates(dsm, l, x, cp, nn, mm, ln, le)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: l(3)
+    type(xpt_t), intent(in) :: x
+    real(dp), intent(out) :: cp, nn, mm, ln, le
+    real(dp) :: w
+    cp = sqrt(x%nx**2 + x%ny**2)                            ! cos(latitude)
+    w = 1.0_dp - dsm%e2 * x%nz**2
+    nn = dsm%a / sqrt(w)                                    ! prime vertical radius of curvature
+    mm = nn * (1.0_dp - dsm%e2) / w                         ! meridian radius of curvature
+    if (cp > 0.0_dp) then
+      ln = (-x%nz * (l(1) * x%nx + l(2) * x%ny)) / cp + l(3) * cp
+      le = (-l(1) * x%ny + l(2) * x%nx) / cp
+    else
+      ln = 0.0_dp
+      le = 0.0_dp
+    end if
+  end subroutine local_rates
 
   !> The far end of a one-ended piece: the point len (> 0) after the exact point x
   !> on the first-order models of extrapolate (latitude and longitude; u, v from
@@ -186,15 +204,10 @@ contains
     type(xpt_t), intent(in) :: x
     type(xpt_t), intent(out) :: q
     logical, intent(out) :: ok
-    real(dp) :: cp, w, mm, nn, ln, le
-    cp = sqrt(x%nx**2 + x%ny**2)                            ! cos(latitude)
+    real(dp) :: cp, mm, nn, ln, le
+    call local_rates(dsm, l, x, cp, nn, mm, ln, le)
     ok = len > 0.0_dp .and. len < huge(1.0_dp) .and. cp > 1.0e-3_dp
     if (.not. ok) return
-    w = 1.0_dp - dsm%e2 * x%nz**2
-    nn = dsm%a / sqrt(w)
-    mm = nn * (1.0_dp - dsm%e2) / w
-    ln = (-x%nz * (l(1) * x%nx + l(2) * x%ny)) / cp + l(3) * cp      ! l . north, l . east (extrapolate)
-    le = (-l(1) * x%ny + l(2) * x%nx) / cp
     q = x
     q%r = x%r + len
     q%lat = x%lat + len * ln / (mm + x%h)                   ! dpsi/dr = (l.north)/(M + h)
