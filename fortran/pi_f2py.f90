@@ -389,22 +389,24 @@ end subroutine core_dsm_codes
 ! ======================================================================
 
 !> Values, surface kinds and local incidence angles of n simulated pixels
-!> from their rays' hits (pi_simulate::sim_shade). DSM grid as
-!> core_dsm_height; gnd(ncols, nrows) bare-earth heights; ortho(nb, ocols,
-!> orows) on its grid (olat0, olon0, odlat, odlon, radians); scal(ns, n) the
-!> rays' hits as core_dsm_trace returns them (rows 1-4: lat, lon in radians,
-!> h, H; passed whole so that its rows are not copied), hit (1 = hit), l(3, n)
-!> unit directions; walls 0
+!> from their rays' hits, and their backplanes (pi_simulate::sim_shade),
+!> written in place into the caller's arrays (a block of the simulation's
+!> output arrays, memory-mapped or not). DSM grid as core_dsm_height;
+!> gnd(ncols, nrows) bare-earth heights; ortho(nb, ocols, orows) on its grid
+!> (olat0, olon0, odlat, odlon, radians); scal(ns, n), ns >= 6, and p(3, n)
+!> the rays' hits as core_dsm_trace returns them (passed whole so that rows
+!> are not copied), hit (1 = hit), l(3, n) unit directions; walls 0
 !> interpolate / 1 ortho; shading 0 none / 1 Lambert; sunmode 0 (azimuth,
-!> elevation in radians in sun(1:2)) / 1 ECR unit vector. Outputs val(nb, n),
-!> kind(n) (-1 none, 0 ground, 1 roof, 2 wall), locinc(n) (radians), noval(n)
-!> (1: a hit with no ortho value there).
+!> elevation in radians in sun(1:2)) / 1 ECR unit vector.
+!> In/out (every element written): img(nb, n) float32 values, kind(n) int8
+!> (-1 none, 0 ground, 1 roof, 2 wall), locinc(n), lat(n), lon(n), inc(n)
+!> (degrees), hgt(n), dist(n), pts(3, n), NaN where not hit; oval(n) int8
+!> (1: a hit with an ortho value there).
 subroutine core_sim_shade(ncols, nrows, hgt, lat0, lon0, dlat, dlon, a, f, interp, gnd, nb, ocols, orows, &
-                          ortho, olat0, olon0, odlat, odlon, ns, n, scal, hit, l, walls, shading, &
-                          sunmode, sun, ambient, cos_wall, roof_min, cell_x, cell_y, fill, threads, val, kind, &
-                          locinc, noval)
-  use pi_kinds, only: dp
-  use pi_vector, only: pi
+                          ortho, olat0, olon0, odlat, odlon, ns, n, scal, p, hit, l, walls, shading, &
+                          sunmode, sun, ambient, cos_wall, roof_min, cell_x, cell_y, fill, threads, img, kind, &
+                          locinc, lat, lon, height, dist, inc, pts, oval)
+  use pi_kinds, only: dp, sp, i1
   use pi_dsm, only: dsm_t, dsm_attach
   use pi_simulate, only: ortho_t, sim_options_t, sim_shade
   use pi_ieee, only: nan_dp
@@ -413,11 +415,12 @@ subroutine core_sim_shade(ncols, nrows, hgt, lat0, lon0, dlat, dlon, a, f, inter
   real(dp), intent(in), target :: hgt(ncols, nrows), ortho(nb, ocols, orows)
   real(dp), intent(in) :: gnd(ncols, nrows)
   real(dp), intent(in) :: lat0, lon0, dlat, dlon, a, f, olat0, olon0, odlat, odlon
-  real(dp), intent(in) :: scal(ns, n), l(3, n), sun(3), ambient, cos_wall, roof_min
+  real(dp), intent(in) :: scal(ns, n), p(3, n), l(3, n), sun(3), ambient, cos_wall, roof_min
   real(dp), intent(in) :: cell_x, cell_y, fill
   integer, intent(in) :: hit(n)
-  real(dp), intent(out) :: val(nb, n), locinc(n)
-  integer, intent(out) :: kind(n), noval(n)
+  real(sp), intent(inout) :: img(nb, n)
+  integer(i1), intent(inout) :: kind(n), oval(n)
+  real(dp), intent(inout) :: locinc(n), lat(n), lon(n), height(n), dist(n), inc(n), pts(3, n)
   real(dp), target :: nopyr(1)
   integer, target :: nometa(3, 1)
   type(dsm_t) :: dsm
@@ -445,12 +448,19 @@ subroutine core_sim_shade(ncols, nrows, hgt, lat0, lon0, dlat, dlon, a, f, inter
   opt%cell_x = cell_x
   opt%cell_y = cell_y
   opt%fill = fill
-  if (ns < 4) then                                   ! (the wrapper checks it; nothing to read otherwise)
-    val = fill
-    kind = -1
+  if (ns < 6) then                                   ! (the wrapper checks it; nothing to read otherwise)
+    img = real(fill, sp)
+    kind = -1_i1
+    oval = 0_i1
     locinc = nan_dp
-    noval = 0
+    lat = nan_dp
+    lon = nan_dp
+    height = nan_dp
+    dist = nan_dp
+    inc = nan_dp
+    pts = nan_dp
     return
   end if
-  call sim_shade(dsm, gnd, o, opt, ns, n, scal, hit, l, threads, val, kind, locinc, noval)
+  call sim_shade(dsm, gnd, o, opt, ns, n, scal, p, hit, l, threads, img, kind, locinc, lat, lon, height, dist, &
+                 inc, pts, oval)
 end subroutine core_sim_shade

@@ -11,7 +11,7 @@
 !> ortho(band, col, row) on its own pixel-centre grid (olat0, olon0, odlat,
 !> odlon, radians), NaN = no data; the ground grid has the DSM's shape.
 module pi_simulate
-  use pi_kinds, only: dp
+  use pi_kinds, only: dp, sp, i1
   use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, interp_nearest, pt_ok
   use pi_vector, only: pi
   use pi_ieee, only: nan_dp, ieee_is_finite => is_finite
@@ -159,45 +159,84 @@ contains
   end subroutine dsm_gradient
 
   !> Value, surface kind and local incidence of n simulated pixels from their
-  !> rays' hits (OpenMP over pixels; results identical for any thread count).
+  !> rays' hits, and the pixels' backplanes, written into the caller's arrays
+  !> (one pass, OpenMP over pixels; results identical for any thread count).
   !>
   !> Inputs: dsm, gnd (bare-earth heights on the DSM grid, NaN = unknown), o
-  !> (ortho-image), opt; hits(ns, n), ns >= 4, the rays' hits as
+  !> (ortho-image), opt; hits(ns, n), ns >= 6, the rays' hits as
   !> pi_dsm_exact's dsm_trace_packed returns them in scal (rows: lat, lon in
   !> radians, h the geodetic height of the hit, H the DSM height there, above
-  !> h on a "nearest" cell side; read in place: no copy of the rows), hit
-  !> (1 where the ray hit), l(3, n) ray directions (ECR, any non-zero length);
-  !> threads (0: all).
-  !> Outputs: val(nb, n) the pixel values (opt%fill where not hit or NaN),
-  !> kind(n) (kind_* codes), locinc(n) the angle between -l and the surface
-  !> normal used (radians; NaN where not hit), noval(n) 1 where the ray hit
-  !> but the ortho-image had no value there (val = opt%fill), else 0.
-  subroutine sim_shade(dsm, gnd, o, opt, ns, n, hits, hit, l, threads, val, kind, locinc, noval)
+  !> h on a "nearest" cell side, the distance along the ray, the incidence
+  !> angle in radians; read in place: no copy of the rows), p(3, n) the hit
+  !> points (ECR), hit (1 where the ray hit), l(3, n) ray directions (ECR, any
+  !> non-zero length); threads (0: all).
+  !> Outputs (every element written): img(nb, n) the pixel values in single
+  !> precision (opt%fill where not hit or NaN), kind(n) (kind_* codes),
+  !> locinc(n) the angle between -l and the surface normal used (degrees),
+  !> lat(n), lon(n) (degrees, lon in [-180, 180)), hgt(n), dist(n),
+  !> inc(n) (degrees), pts(3, n) copied from hits and p, all NaN where not hit;
+  !> oval(n) 1 where the ray hit and the ortho-image had a value there, else 0.
+  !> (Before, Python converted and copied these from the trace's rows after
+  !> the call, serially: ~20 % of a one-thread simulation; simulation note 13.)
+  subroutine sim_shade(dsm, gnd, o, opt, ns, n, hits, p, hit, l, threads, img, kind, locinc, lat, lon, hgt, &
+                       dist, inc, pts, oval)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: gnd(:, :)
     type(ortho_t), intent(in) :: o
     type(sim_options_t), intent(in) :: opt
     integer, intent(in) :: ns, n, hit(n), threads
-    real(dp), intent(in) :: hits(ns, n), l(3, n)
-    real(dp), intent(out) :: val(o%nb, n), locinc(n)
-    integer, intent(out) :: kind(n), noval(n)
-    integer :: k, nth
+    real(dp), intent(in) :: hits(ns, n), p(3, n), l(3, n)
+    real(sp), intent(out) :: img(o%nb, n)
+    integer(i1), intent(out) :: kind(n), oval(n)
+    real(dp), intent(out) :: locinc(n), lat(n), lon(n), hgt(n), dist(n), inc(n), pts(3, n)
+    real(dp), parameter :: deg = 180.0_dp / pi
+    integer :: k, nth, kk, noval
+    real(dp) :: li, x
+    real(dp), allocatable :: vw(:)
     nth = 1
     !$ nth = threads
     !$ if (nth <= 0) nth = omp_get_max_threads()
-    !$omp parallel do num_threads(nth) schedule(static, 256) default(shared) private(k)
+    ! (vw: one pixel's values, each thread's own, allocated once: an automatic array in the loop
+    ! was a malloc and free per pixel)
+    !$omp parallel num_threads(nth) default(shared) private(k, kk, noval, li, x, vw)
+    allocate(vw(o%nb))
+    !$omp do schedule(static, 256)
     do k = 1, n
-      noval(k) = 0
       if (hit(k) /= 1) then
-        val(:, k) = opt%fill
-        kind(k) = kind_none
+        img(:, k) = real(opt%fill, sp)
+        kind(k) = int(kind_none, i1)
+        oval(k) = 0_i1
         locinc(k) = nan_dp
+        lat(k) = nan_dp
+        lon(k) = nan_dp
+        hgt(k) = nan_dp
+        dist(k) = nan_dp
+        inc(k) = nan_dp
+        pts(:, k) = nan_dp
       else
-        call shade_one(dsm, gnd, o, opt, hits(1, k), hits(2, k), hits(3, k), hits(4, k), l(:, k), val(:, k), &
-                       kind(k), locinc(k), noval(k))
+        call shade_one(dsm, gnd, o, opt, hits(1, k), hits(2, k), hits(3, k), hits(4, k), l(:, k), vw, &
+                       kk, li, noval)
+        img(:, k) = real(vw, sp)
+        kind(k) = int(kk, i1)
+        oval(k) = int(1 - noval, i1)
+        locinc(k) = li * deg
+        lat(k) = hits(1, k) * deg
+        x = hits(2, k) * deg                        ! atan2's +180 (or -180 less an ulp): into [-180, 180)
+        if (x >= 180.0_dp) then
+          x = x - 360.0_dp
+        else if (x < -180.0_dp) then
+          x = x + 360.0_dp
+        end if
+        lon(k) = x
+        hgt(k) = hits(3, k)
+        dist(k) = hits(5, k)
+        inc(k) = hits(6, k) * deg
+        pts(:, k) = p(:, k)
       end if
     end do
-    !$omp end parallel do
+    !$omp end do
+    deallocate(vw)
+    !$omp end parallel
   end subroutine sim_shade
 
   !> One pixel of sim_shade.

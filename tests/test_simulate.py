@@ -120,6 +120,70 @@ def test_default_blocks_hold_about_block_pixels(box, monkeypatch):
         np.testing.assert_array_equal(getattr(b, name), getattr(c, name), err_msg=name)
 
 
+def test_shading_pass_runs_on_the_requested_threads(box, monkeypatch):
+    """simulate_image(threads=2) gives its shading pass two threads (it was given min(threads, 1),
+    so the pass ran on one thread whatever was asked: simulation note 13); threads=None: all cores."""
+    import os
+
+    from planet_intersect import _ext
+
+    core = _ext.core
+    seen = []
+
+    class Spy:
+        def __getattr__(self, name):
+            fn = getattr(core, name)
+            if name != "core_sim_shade":
+                return fn
+
+            def spy(*args, **kw):
+                seen.append(kw["threads"])
+                return fn(*args, **kw)
+            return spy
+
+    monkeypatch.setattr(_ext, "core", Spy(), raising=False)
+    dsm, ortho, scene, sensor = box
+    pi.simulate_image(dsm, ortho, sensor, threads=2, occlusion=False)
+    assert seen and set(seen) == {2}
+    seen.clear()
+    pi.simulate_image(dsm, ortho, sensor, threads=None, occlusion=False)
+    assert set(seen) == {len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()}
+
+
+@pytest.mark.filterwarnings("ignore:.*where the ortho-image has no value")
+def test_backplanes_equal_the_trace_across_the_antimeridian():
+    """The backplanes the shading pass writes (degrees, longitudes wrapped into [-180, 180), NaN
+    where not hit) equal pi.intersect's own results for the same rays, on a scene that straddles
+    180 deg with a box on it and lines wider than the DSM (misses)."""
+    dlat, dlon = metre_steps(LAT0)
+    n = 60
+    h = np.zeros((n, n))
+    h[20:40, 25:35] = 15.0
+    lon_first = 180.0 - 30 * dlon                      # columns 0-29 east of 179.99.., 30-59 west of -179.99..
+    lat_first = LAT0 + (n - 1) * dlat
+    dsm = pi.GeodeticDSM.from_array(h, lat_first, lon_first, -dlat, dlon, interpolation="nearest")
+    ortho = pi.OrthoImage.from_array(np.arange(n * n, dtype=float).reshape(n, n), lat_first, lon_first, -dlat, dlon)
+    scene = dict(heights=h, lat_first=lat_first, lon_first=lon_first, dlat=-dlat, dlon=dlon)
+    s0, l0 = oblique_pushbroom(scene, zenith=20.0, azimuth=90.0, margin=0)
+    lc = l0[:, l0.shape[1] // 2][:, None, :]
+    sensor = pi.Pushbroom(s0, lc + 1.3 * (l0 - lc))
+    sim = pi.simulate_image(dsm, ortho, sensor, threads=2, occlusion=False, block_lines=9)
+    s, l = sensor.rays()
+    res = pi.intersect(dsm, s, l, method="exact", threads=1)
+    nl, npx = sensor.shape
+    hit = res.hit.reshape(nl, npx)
+    assert 0 < (~hit).sum() and hit.sum() > 0.5 * hit.size
+    np.testing.assert_array_equal(sim.valid, hit)
+    lon = sim.lon[hit]
+    assert (lon >= -180.0).all() and (lon < 180.0).all() and (lon > 179.0).any() and (lon < -179.0).any()
+    for name, ref in (("lat", res.lat), ("lon", res.lon), ("height", res.height), ("distance", res.distance),
+                      ("incidence", res.incidence)):
+        np.testing.assert_array_equal(getattr(sim, name), np.where(hit, ref.reshape(nl, npx), np.nan), err_msg=name)
+    np.testing.assert_array_equal(sim.p, np.where(hit[..., None], res.p.reshape(nl, npx, 3), np.nan))
+    assert np.isnan(sim.local_incidence[~hit]).all() and (sim.surface[~hit] == -1).all()
+    assert np.isfinite(sim.local_incidence[hit]).all() and (sim.local_incidence[hit] <= 90.0).all()
+
+
 @pytest.mark.filterwarnings("ignore:.*where the ortho-image has no value")
 def test_blocks_threads_and_memmap_give_identical_results(box, tmp_path):
     dsm, ortho, scene, sensor = box

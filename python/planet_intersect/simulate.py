@@ -599,12 +599,20 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
         raise
 
 
+def _rows(arr, blk: slice, shape):
+    """A view of the rows ``blk`` of a C-ordered output array, reshaped (the kernel writes into
+    it in place: a reshape that had to copy would lose the results, so it is refused)."""
+    block = arr[blk]
+    if not block.flags.c_contiguous:                       # (_alloc makes them C-ordered)
+        raise RuntimeError("simulate_image: an output block is not contiguous (internal error)")
+    return block.reshape(shape)
+
+
 def _simulate(dsm, ortho, sensor, method, walls, shading, sun_arr, ambient, fill, occlusion, ground_grid, wall_slope,
               roof_min, threads, block_lines, progress, out_dir) -> SimResult:
     """simulate_image after its checks (out_dir: the new folder of the maps, or None)."""
     from ._ext import core as _core
     from .dsm import _trace_raw
-    from .geodetic import _wrap180
     from .intersect import check_threads
 
     nl, npx = sensor.shape
@@ -637,7 +645,9 @@ def _simulate(dsm, ortho, sensor, method, walls, shading, sun_arr, ambient, fill
     shade_args = dict(walls=0 if walls == "interpolate" else 1, shading=0 if shading == "none" else 1,
                       sunmode=sunmode, sun=sunv, ambient=ambient, cos_wall=math.cos(math.radians(wall_slope)),
                       roof_min=roof_min, cell_x=dsm.dlon * mx, cell_y=abs(dsm.dlat) * my, fill=fill)
-    nthreads = check_threads(threads, 1)
+    # the shading pass's threads (a block's pixels; before 2026-12-03 this was capped at 1 by passing
+    # n = 1, so the pass ran on one thread whatever `threads` said: simulation note 13)
+    nthreads = check_threads(threads, block_lines * npx)
     bar = _Progress(nl, progress)
     t0 = time.perf_counter()
     t_rays = 0.0
@@ -653,40 +663,20 @@ def _simulate(dsm, ortho, sensor, method, walls, shading, sun_arr, ambient, fill
                              f"{exc}") from None
         t_rays += time.perf_counter() - ta
         blk = slice(k0, k1)
-        shape2 = (k1 - k0, npx)
+        nb_ = k1 - k0
         hit = (st == DSMStatus.HIT) | (st == DSMStatus.HIT_UNCONVERGED)   # [sim note 8]
-        hit2 = hit.reshape(shape2)
-        status[blk] = st.reshape(shape2)
-        valid[blk] = hit2
-        miss2 = None if hit.all() else ~hit2
-        # the backplanes, written in one pass each from the trace's rows (scal is (10, n) in
-        # Fortran order: a row reshaped to the block is a strided view, p.T a contiguous one)
-        for name, row, deg in (("lat", 0, True), ("lon", 1, True), ("height", 2, False),
-                               ("distance", 4, False), ("incidence", 5, True)):
-            dst = planes[name][blk]
-            src = scal[row].reshape(shape2)
-            if deg:
-                np.degrees(src, out=dst)
-            else:
-                dst[...] = src
-            if miss2 is not None:
-                dst[miss2] = np.nan
-        lon = planes["lon"][blk]
-        wrap = (lon >= 180.0) | (lon < -180.0)              # atan2's +180 (NaN compares false)
-        if wrap.any():
-            lon[wrap] = _wrap180(lon[wrap])
-        dst = pts[blk]
-        dst[...] = p.T.reshape(shape2 + (3,))
-        if miss2 is not None:
-            dst[miss2] = np.nan
-        # scal (10, n) in Fortran order as the trace returned it: the kernel reads its rows in place
-        val, kind, locinc, noval = _core.core_sim_shade(*grid[:7], grid[7], gnd, ov, *ortho._core_grid(), scal,
-                                                        hit.astype(np.int32), l.T,
-                                                        threads=nthreads, **shade_args)
-        ortho_value[blk] = hit2 & (noval == 0).reshape(shape2)
-        image[blk] = val.T.reshape(((k1 - k0), npx) + ishape[2:])
-        surface[blk] = kind.reshape(shape2)
-        planes["local_incidence"][blk] = np.degrees(locinc).reshape(shape2)
+        status[blk] = st.reshape(nb_, npx)
+        valid[blk] = hit.reshape(nb_, npx)
+        # the value, kind and every backplane written in place into the block of each output
+        # array by one parallel pass (the block's rows are contiguous: 1-D views of length n,
+        # and (3, n) / (bands, n) Fortran-ordered views of the transposed blocks) [sim note 13]
+        _core.core_sim_shade(*grid[:7], grid[7], gnd, ov, *ortho._core_grid(), scal, p,
+                             hit.astype(np.int32), l.T, threads=nthreads, **shade_args,
+                             img=_rows(image, blk, (n, bands)).T, kind=_rows(surface, blk, n),
+                             locinc=_rows(planes["local_incidence"], blk, n), lat=_rows(planes["lat"], blk, n),
+                             lon=_rows(planes["lon"], blk, n), height=_rows(planes["height"], blk, n),
+                             dist=_rows(planes["distance"], blk, n), inc=_rows(planes["incidence"], blk, n),
+                             pts=_rows(pts, blk, (n, 3)).T, oval=_rows(ortho_value, blk, n).view(np.int8))
         bar.update(k1, k1 * npx)
     t_sim = time.perf_counter() - t0
     sim = SimResult(image=image, valid=valid, surface=surface, status=status, p=pts, ortho_value=ortho_value,
