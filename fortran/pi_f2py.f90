@@ -400,7 +400,7 @@ end subroutine core_dsm_codes
 !> elevation in radians in sun(1:2)) / 1 ECR unit vector.
 !> In/out (every element written): img(nb, n) float32 values, kind(n) int8
 !> (-1 none, 0 ground, 1 roof, 2 wall), locinc(n), lat(n), lon(n), inc(n)
-!> (degrees), hgt(n), dist(n), pts(3, n), NaN where not hit; oval(n) int8
+!> (degrees; lon not wrapped), hgt(n), dist(n), pts(3, n), NaN where not hit; oval(n) int8
 !> (1: a hit with an ortho value there).
 subroutine core_sim_shade(ncols, nrows, hgt, lat0, lon0, dlat, dlon, a, f, interp, gnd, nb, ocols, orows, &
                           ortho, olat0, olon0, odlat, odlon, ns, n, scal, p, hit, l, walls, shading, &

@@ -173,7 +173,8 @@ contains
   !> Outputs (every element written): img(nb, n) the pixel values in single
   !> precision (opt%fill where not hit or NaN), kind(n) (kind_* codes),
   !> locinc(n) the angle between -l and the surface normal used (degrees),
-  !> lat(n), lon(n) (degrees, lon in [-180, 180)), hgt(n), dist(n),
+  !> lat(n), lon(n) (degrees; lon as atan2 gives it, which the caller
+  !> wraps into [-180, 180) where it is off by rounding), hgt(n), dist(n),
   !> inc(n) (degrees), pts(3, n) copied from hits and p, all NaN where not hit;
   !> oval(n) 1 where the ray hit and the ortho-image had a value there, else 0.
   !> (Before, Python converted and copied these from the trace's rows after
@@ -191,14 +192,14 @@ contains
     real(dp), intent(out) :: locinc(n), lat(n), lon(n), hgt(n), dist(n), inc(n), pts(3, n)
     real(dp), parameter :: deg = 180.0_dp / pi
     integer :: k, nth, kk, noval
-    real(dp) :: li, x
+    real(dp) :: li
     real(dp), allocatable :: vw(:)
     nth = 1
     !$ nth = threads
     !$ if (nth <= 0) nth = omp_get_max_threads()
     ! (vw: one pixel's values, each thread's own, allocated once: an automatic array in the loop
     ! was a malloc and free per pixel)
-    !$omp parallel num_threads(nth) default(shared) private(k, kk, noval, li, x, vw)
+    !$omp parallel num_threads(nth) default(shared) private(k, kk, noval, li, vw)
     allocate(vw(o%nb))
     !$omp do schedule(static, 256)
     do k = 1, n
@@ -221,13 +222,10 @@ contains
         oval(k) = int(1 - noval, i1)
         locinc(k) = li * deg
         lat(k) = hits(1, k) * deg
-        x = hits(2, k) * deg                        ! atan2's +180 (or -180 less an ulp): into [-180, 180)
-        if (x >= 180.0_dp) then
-          x = x - 360.0_dp
-        else if (x < -180.0_dp) then
-          x = x + 360.0_dp
-        end if
-        lon(k) = x
+        ! (not wrapped here: a hit within ulps of the antimeridian can be a few ulps beyond +-180,
+        ! and the caller wraps those with pi.intersect's own arithmetic, so that the two agree to
+        ! the bit; an exact x -+ 360 here differed from it on 3 of 3,600 pixels of a review's scene)
+        lon(k) = hits(2, k) * deg
         hgt(k) = hits(3, k)
         dist(k) = hits(5, k)
         inc(k) = hits(6, k) * deg
@@ -248,7 +246,7 @@ contains
     real(dp), intent(in) :: lat, lon, h, hsurf, l(3)
     real(dp), intent(out) :: val(o%nb), locinc
     integer, intent(out) :: kind, noval
-    real(dp) :: sl, cl, so, co, e(3), nv(3), up(3), w, my, mx, u, v, gx, gy, g2, gn, horiz(3), nrm(3)
+    real(dp) :: sl, cl, so, co, e(3), nv(3), up(3), w, my, mx, u, v, gx, gy, g2, gn, nrm(3)
     real(dp) :: cosi, ground, sun(3), fac, az, el, lu(3)
     logical :: wall
     lu = l / sqrt(sum(l * l))                        ! any length: the caller's directions
@@ -269,10 +267,10 @@ contains
     ! steeper than wall_slope <=> cos(slope) = 1/sqrt(1 + g^2) < cos(wall_slope)  [sim note 1]
     wall = 1.0_dp / sqrt(1.0_dp + g2) < opt%cos_wall
     if (dsm%interp == interp_nearest) wall = wall .and. (hsurf - h > 1.0e-6_dp)      ! [sim note 3]
-    gn = sqrt(max(g2, 1.0e-300_dp))
-    horiz = -(gx / gn) * e - (gy / gn) * nv          ! outward horizontal: downhill
+    gn = 1.0_dp
     if (wall) then
-      nrm = horiz
+      gn = sqrt(max(g2, 1.0e-300_dp))
+      nrm = -(gx / gn) * e - (gy / gn) * nv          ! outward horizontal: downhill
     else if (dsm%interp == interp_nearest) then
       nrm = up                                       ! flat tops
     else

@@ -154,12 +154,15 @@ def test_shading_pass_runs_on_the_requested_threads(box, monkeypatch):
 def test_backplanes_equal_the_trace_across_the_antimeridian():
     """The backplanes the shading pass writes (degrees, longitudes wrapped into [-180, 180), NaN
     where not hit) equal pi.intersect's own results for the same rays, on a scene that straddles
-    180 deg with a box on it and lines wider than the DSM (misses)."""
+    180 deg with a box on it and lines wider than the DSM (misses). Some hits lie a few ulps
+    beyond +-180 deg; a wrap by an exact -+360 in the kernel gave 179.99999999999997 where
+    pi.intersect gives -180.0 (a review of the change: simulation note 13)."""
     dlat, dlon = metre_steps(LAT0)
     n = 60
     h = np.zeros((n, n))
-    h[20:40, 25:35] = 15.0
-    lon_first = 180.0 - 30 * dlon                      # columns 0-29 east of 179.99.., 30-59 west of -179.99..
+    h[20:40, 15:45] = 20.0                             # a box across 180 deg, its walls and roof hit
+    h[5:9, 40:44] = 35.0
+    lon_first = 180.0 - 30 * dlon                      # column 30's centre on 180 deg
     lat_first = LAT0 + (n - 1) * dlat
     dsm = pi.GeodeticDSM.from_array(h, lat_first, lon_first, -dlat, dlon, interpolation="nearest")
     ortho = pi.OrthoImage.from_array(np.arange(n * n, dtype=float).reshape(n, n), lat_first, lon_first, -dlat, dlon)

@@ -613,6 +613,7 @@ def _simulate(dsm, ortho, sensor, method, walls, shading, sun_arr, ambient, fill
     """simulate_image after its checks (out_dir: the new folder of the maps, or None)."""
     from ._ext import core as _core
     from .dsm import _trace_raw
+    from .geodetic import _wrap180
     from .intersect import check_threads
 
     nl, npx = sensor.shape
@@ -677,6 +678,10 @@ def _simulate(dsm, ortho, sensor, method, walls, shading, sun_arr, ambient, fill
                              lon=_rows(planes["lon"], blk, n), height=_rows(planes["height"], blk, n),
                              dist=_rows(planes["distance"], blk, n), inc=_rows(planes["incidence"], blk, n),
                              pts=_rows(pts, blk, (n, 3)).T, oval=_rows(ortho_value, blk, n).view(np.int8))
+        lon = planes["lon"][blk]
+        wrap = (lon >= 180.0) | (lon < -180.0)              # atan2's +-180 and rounding (NaN compares false)
+        if wrap.any():
+            lon[wrap] = _wrap180(lon[wrap])                 # pi.intersect's arithmetic, to the bit
         bar.update(k1, k1 * npx)
     t_sim = time.perf_counter() - t0
     sim = SimResult(image=image, valid=valid, surface=surface, status=status, p=pts, ortho_value=ortho_value,
