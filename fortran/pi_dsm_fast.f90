@@ -293,17 +293,22 @@ contains
   !> the segment when only the widening straddles it; 0: none), wm the half
   !> width along the ray of the band around it where the widened box straddles
   !> the boundary (at least refine_tol / 4). Only speed depends on them.
-  pure subroutine seg_bounds(dsm, pc, pa, pb, hlow, hb, cell, rsplit, wm)
+  !> wj >= 0 when that boundary is the meridian between columns wj and wj + 1
+  !> of the one row wi ("nearest", the box inside the grid): search_piece's
+  !> wall crossing in closed form (wall_cross); -1 otherwise.
+  pure subroutine seg_bounds(dsm, pc, pa, pb, hlow, hb, cell, rsplit, wm, wi, wj)
     type(dsm_t), intent(in) :: dsm
     type(piece_t), intent(in) :: pc
     type(lpt_t), intent(in) :: pa, pb
     real(dp), intent(out) :: hlow, hb, rsplit, wm
-    integer, intent(out) :: cell
+    integer, intent(out) :: cell, wi, wj
     real(dp) :: v0, v1, u0, u1, t, dm, w
     integer :: ci0, ci1, cj0, cj1
     logical :: out
     hlow = h_lower(pc, pa%r, pb%r)
     cell = -1
+    wi = -1
+    wj = -1
     rsplit = 0.0_dp
     wm = 0.25_dp * refine_tol
     v0 = min(pa%v, pb%v) - pc%dv
@@ -325,6 +330,10 @@ contains
           dm = pb%u - pa%u
           t = cj0 + 0.5_dp - pa%u
           w = pc%du
+          if (ci0 >= 0 .and. ci0 <= dsm%nrows - 1 .and. cj0 >= 0 .and. cj1 <= dsm%ncols - 1) then
+            wi = ci0
+            wj = cj0
+          end if
         else
           dm = pb%v - pa%v
           t = ci0 + 0.5_dp - pa%v
@@ -948,9 +957,9 @@ contains
     type(piece_t) :: pc
     type(xpt_t) :: xc, xd
     type(lpt_t) :: pa, pb, pm, stack(fast_depth)
-    real(dp) :: dh, hs, hlow, hb, r, g, dr, hc, rsplit, rm, rstar, rc, cn, eps, wm
+    real(dp) :: dh, hs, hlow, hb, r, g, dr, hc, rsplit, rm, rstar, rc, cn, eps, wm, rw, ew, hn
     logical :: found, pok, near
-    integer :: code, nst, it, cell, sub, cst
+    integer :: code, nst, it, cell, sub, cst, wi, wj
     outcome = out_declined
     call make_piece(dsm, s, l, xa, xb, pc, pok, one)
     if (.not. pok) return
@@ -964,7 +973,7 @@ contains
         outcome = out_declined
         return
       end if
-      call seg_bounds(dsm, pc, pa, pb, hlow, hb, cell, rsplit, wm)
+      call seg_bounds(dsm, pc, pa, pb, hlow, hb, cell, rsplit, wm, wi, wj)
       if (hlow > hb) then                                 ! nothing to meet in this segment
         call next_segment(pa, pb, stack, nst)
         if (nst < 0) exit
@@ -982,6 +991,32 @@ contains
         if (rc - pa%r > 0.01_dp * (pb%r - pa%r)) then
           call eval_l(pc, rc, pa)
           if (cell < 0) cycle
+        end if
+      end if
+      if (wj >= 0) then
+        ! one meridian wall between two cells of a row: its crossing rw in closed form, to +-ew
+        ! (wall_cross). Before rw - ew the ray is in the near cell, which it clears when h_lower
+        ! there is above that cell's height; the point rw + ew (at most 2 ew <= refine_tol / 2
+        ! after the true crossing) is then classified exactly, one conversion, where the halving
+        ! search took ~3 (the widened boxes straddle the boundary all along its band)
+        call wall_cross(dsm, s, l, pa, pb, wi, wj, rw, ew, hn)
+        if (ew <= 0.25_dp * refine_tol) then
+          if (h_lower(pc, pa%r, rw - ew) > hn) then
+            r = rw + ew
+            call eval_p(dsm, s, l, pc, r, xc, res%nsteps)
+            call dsm_height(dsm, xc%lat, xc%lon, hs, code)
+            if (code == pt_nodata) then
+              call set_event(dsm, s, l, r, ray_no_data, res)
+              outcome = out_decided
+              return
+            else if (code == pt_ok .and. xc%h <= hs) then
+              call fast_hit(s, l, xc, hs, res)
+              outcome = out_decided
+              return
+            end if
+            call eval_l(pc, r, pa)                        ! [pa, r] is clear (to stays below 2 ew)
+            cycle
+          end if
         end if
       end if
       if (level == 2) then                                ! one bilinear cell: the candidate in closed form
@@ -1121,6 +1156,49 @@ contains
     end do
     outcome = out_clear
   end subroutine search_piece
+
+  !> Where the ray crosses the meridian between columns wj and wj + 1 (the
+  !> boundary u = wj + 1/2 of a "nearest" grid) inside the segment (pa, pb):
+  !> the plane through the polar axis at longitude lb = lon0 + (wj + 1/2) dlon,
+  !> normal n = (-sin lb, cos lb, 0), meets the line at rw = -(s.n) / (l.n)
+  !> (exact up to rounding; a line crosses such a half-plane once). ew bounds
+  !> the along-ray error of rw and of the boundary as the grid lookup sees it
+  !> (rounding of s.n and of the longitudes, 3e-15 (|s| + rw), over |l.n|);
+  !> hn is the height of the cell on pa's side, in row wi. ew = +huge: no
+  !> crossing inside (pa, pb) by more than ew, the crossing on the other
+  !> half of the plane, or the near cell without data. Only speed depends on
+  !> when it declines (search_piece then halves as before).
+  pure subroutine wall_cross(dsm, s, l, pa, pb, wi, wj, rw, ew, hn)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3)
+    type(lpt_t), intent(in) :: pa, pb
+    integer, intent(in) :: wi, wj
+    real(dp), intent(out) :: rw, ew, hn
+    real(dp) :: lb, cb, sb, sn, ln, xa
+    integer :: jn
+    ew = huge(1.0_dp)
+    rw = 0.0_dp
+    hn = huge(1.0_dp)
+    lb = dsm%lon0 + (wj + 0.5_dp) * dsm%dlon
+    cb = cos(lb)
+    sb = sin(lb)
+    sn = -s(1) * sb + s(2) * cb
+    ln = -l(1) * sb + l(2) * cb
+    if (.not. (abs(ln) > 1.0e-3_dp)) return
+    rw = -sn / ln
+    if (.not. ((s(1) + rw * l(1)) * cb + (s(2) + rw * l(2)) * sb > 0.0_dp)) return   ! the other half-plane
+    xa = 3.0e-15_dp * (sqrt(s(1)**2 + s(2)**2 + s(3)**2) + abs(rw)) / abs(ln)
+    if (.not. (rw - xa > pa%r .and. rw + xa < pb%r)) return
+    ! (s + r l).n = rho sin(lon - lb) has the sign of r - rw when ln > 0: before rw the ray is west of
+    ! the meridian (column wj, dlon > 0), after it east (wj + 1); the other way round when ln < 0
+    jn = merge(wj, wj + 1, ln > 0.0_dp)
+    hn = dsm%hgt(jn + 1, wi + 1)
+    if (.not. (abs(hn) <= huge(1.0_dp))) then              ! no data: the halving search decides
+      hn = huge(1.0_dp)
+      return
+    end if
+    ew = xa
+  end subroutine wall_cross
 
   !> Fill res as a hit at the exact point x, where the surface height hs was
   !> found (as pi_follow's set_hit, without converting and looking up again).

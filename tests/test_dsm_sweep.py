@@ -243,6 +243,41 @@ def test_certified_rays_skip_the_short_pieces_far_end(city, interp, median, mean
     assert np.mean(n[cert]) < mean
 
 
+@pytest.mark.parametrize("zenith,azimuth,median", [(9.0, 90.0, 2), (30.0, 270.0, 5), (20.0, 60.0, 4)])
+def test_meridian_walls_are_crossed_in_closed_form(zenith, azimuth, median):
+    """A "nearest" wall between two columns is a meridian plane: the search takes the ray's crossing
+    of it in closed form (pi_dsm_fast's wall_cross, to ~1e-7 m) and classifies one exact point just
+    past it, where halving down to 1e-6 m leaves converted ~3 more points. Median conversions of the
+    rays that hit such a wall: 2, 5 and 4 here (the certified point and that one at 9 deg; at 30 deg
+    half of them hit beyond the certified ray's first piece; the 60 deg lines get no certificates),
+    5, 8 and 7 before; a roof hit takes 2, 2 and 3. Against the independent exhaustive
+    reference, every ray: the same status, and each hit at most TOL_R after the reference's entry
+    (which it puts exactly on the boundary) and at most 2e-7 m before it (the two geodesies place a
+    wall's crossing up to ~8e-8 m apart here, with the halving search as with the closed form)."""
+    from references.dsm_exhaustive import HIT as X_HIT, LEFT_DSM as X_LEFT, NO_DATA as X_ND, exhaustive_first_hit
+
+    g = sd.building_scene(n=128, seed=8)
+    g.pop("roof_id")
+    dsm = _dsm(g, "nearest", holes=6, seed=9)
+    s, l, npx = oblique_lines(g, zenith, azimuth, lines=12)
+    check(dsm, s, l, npx)
+    st, r, n = trace(dsm, s, l, npx)
+    lat, lon = trace.lat, trace.lon
+    ref = exhaustive_first_hit(dsm.heights, g["lat_first"], g["lon_first"], g["dlat"], g["dlon"], s, l,
+                               interpolation="nearest")
+    want = np.select([ref["status"] == X_HIT, ref["status"] == X_ND, ref["status"] == X_LEFT],
+                     [HIT, NO_DATA, LEFT_DSM], -1)
+    known = want >= 0
+    np.testing.assert_array_equal(st[known], want[known])
+    hit = st == HIT
+    late = r[hit] - ref["r"][hit]
+    assert late.max() <= TOL_R and late.min() >= -2e-7, (late.min(), late.max())
+    u = (np.degrees(lon) - dsm.lon_first) / dsm.dlon
+    merid = hit & ref["wall"] & (np.abs(u - np.floor(u) - 0.5) < 1e-6)
+    assert merid.sum() >= 100, merid.sum()
+    assert np.median(n[merid]) == median, np.bincount(n[merid])
+
+
 @pytest.mark.parametrize("interp", ["nearest", "bilinear"])
 def test_random_fans_coplanar_and_off_plane(city, interp):
     dsm = _dsm(city, interp, holes=40, seed=3)
