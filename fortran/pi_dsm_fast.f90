@@ -1003,17 +1003,8 @@ contains
         if (ew <= 0.25_dp * refine_tol) then
           if (h_lower(pc, pa%r, rw - ew) > hn) then
             r = rw + ew
-            call eval_p(dsm, s, l, pc, r, xc, res%nsteps)
-            call dsm_height(dsm, xc%lat, xc%lon, hs, code)
-            if (code == pt_nodata) then
-              call set_event(dsm, s, l, r, ray_no_data, res)
-              outcome = out_decided
-              return
-            else if (code == pt_ok .and. xc%h <= hs) then
-              call fast_hit(s, l, xc, hs, res)
-              outcome = out_decided
-              return
-            end if
+            call classify(dsm, s, l, pc, r, res, outcome)
+            if (outcome == out_decided) return
             call eval_l(pc, r, pa)                        ! [pa, r] is clear (to stays below 2 ew)
             cycle
           end if
@@ -1028,17 +1019,8 @@ contains
         else if (cst == 2) then
           ! no entry before rstar: classify rstar + tol/2 (a leaf of length tol/2)
           r = min(rstar + 0.5_dp * refine_tol, pb%r)
-          call eval_p(dsm, s, l, pc, r, xc, res%nsteps)
-          call dsm_height(dsm, xc%lat, xc%lon, hs, code)
-          if (code == pt_nodata) then
-            call set_event(dsm, s, l, r, ray_no_data, res)
-            outcome = out_decided
-            return
-          else if (code == pt_ok .and. xc%h <= hs) then
-            call fast_hit(s, l, xc, hs, res)
-            outcome = out_decided
-            return
-          end if
+          call classify(dsm, s, l, pc, r, res, outcome)
+          if (outcome == out_decided) return
           if (r >= pb%r) then
             call next_segment(pa, pb, stack, nst)
             if (nst < 0) exit
@@ -1110,17 +1092,8 @@ contains
         ! margins visits leaf after leaf (~10,000 conversions before the decline); exact_ray's chord
         ! rule settles such rays
         nseg = nseg + fast_leaf - 1
-        call eval_p(dsm, s, l, pc, pb%r, xc, res%nsteps)
-        call dsm_height(dsm, xc%lat, xc%lon, hs, code)
-        if (code == pt_nodata) then
-          call set_event(dsm, s, l, pb%r, ray_no_data, res)
-          outcome = out_decided
-          return
-        else if (code == pt_ok .and. xc%h <= hs) then
-          call fast_hit(s, l, xc, hs, res)
-          outcome = out_decided
-          return
-        end if
+        call classify(dsm, s, l, pc, pb%r, res, outcome)
+        if (outcome == out_decided) return
         call next_segment(pa, pb, stack, nst)
         if (nst < 0) exit
         cycle
@@ -1156,6 +1129,29 @@ contains
     end do
     outcome = out_clear
   end subroutine search_piece
+
+  !> Classify the exact point at rq of piece pc's ray (one conversion, counted in
+  !> res%nsteps): a no-data point or a hit there decides the ray (outcome =
+  !> out_decided, res set); otherwise outcome is left as it was.
+  pure subroutine classify(dsm, s, l, pc, rq, res, outcome)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3), rq
+    type(piece_t), intent(in) :: pc
+    type(dsm_ray_t), intent(inout) :: res
+    integer, intent(inout) :: outcome
+    type(xpt_t) :: x
+    real(dp) :: hs
+    integer :: code
+    call eval_p(dsm, s, l, pc, rq, x, res%nsteps)
+    call dsm_height(dsm, x%lat, x%lon, hs, code)
+    if (code == pt_nodata) then
+      call set_event(dsm, s, l, rq, ray_no_data, res)
+      outcome = out_decided
+    else if (code == pt_ok .and. x%h <= hs) then
+      call fast_hit(s, l, x, hs, res)
+      outcome = out_decided
+    end if
+  end subroutine classify
 
   !> Where the ray crosses the meridian between columns wj and wj + 1 (the
   !> boundary u = wj + 1/2 of a "nearest" grid) inside the segment (pa, pb):
