@@ -13,7 +13,7 @@
 module pi_simulate
   use pi_kinds, only: dp, sp, i1
   use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, interp_nearest, pt_ok
-  use pi_vector, only: pi
+  use pi_vector, only: pi, deg
   use pi_ieee, only: nan_dp, ieee_is_finite => is_finite
   !$ use omp_lib, only: omp_get_max_threads
   implicit none
@@ -190,7 +190,6 @@ contains
     real(sp), intent(out) :: img(o%nb, n)
     integer(i1), intent(out) :: kind(n), oval(n)
     real(dp), intent(out) :: locinc(n), lat(n), lon(n), hgt(n), dist(n), inc(n), pts(3, n)
-    real(dp), parameter :: deg = 180.0_dp / pi
     integer :: k, nth, kk, noval
     real(dp) :: li
     real(dp), allocatable :: vw(:)
