@@ -36,6 +36,7 @@ module pi_dsm_exact
   use pi_geodetic, only: ecr_to_geodetic
   use pi_dsm_fast, only: fast_ray, lat_second_bound
   use pi_dsm_sweep, only: sweep_fans, sweep_runs
+  use pi_ray_order, only: ray_order
   use pi_ieee, only: nan_dp, ieee_is_finite => is_finite, ieee_is_nan => is_nan
   !$ use omp_lib, only: omp_get_max_threads
   implicit none
@@ -728,7 +729,9 @@ contains
 
   !> Trace n rays with one of the three methods; OpenMP over rays with a
   !> num_threads clause (threads <= 0: all), no shared mutable state, so the
-  !> results are bit-identical for any thread count.
+  !> results are bit-identical for any thread count. The rays are traced in
+  !> pi_ray_order's order (spatially sorted unless the batch is coherent
+  !> already); the results are the same in any order.
   !>
   !> Inputs: dsm; s(3, n), l(3, n) ECR (l any non-zero length); method.
   !> Outputs: p(3, n) hit points, q(3, n) event points; scal(10, n) = lat, lon,
@@ -752,10 +755,11 @@ contains
     integer, intent(out) :: status(n), nsteps(n), stat
     !> rays per fan (0 or 1: none; -1: runs of one focal point)
     integer, intent(in), optional :: fan
-    integer :: k, nt, nf
+    integer :: k, kk, nt, nf
     real(dp) :: nan
     real(dp), allocatable :: rclear(:)
-    logical :: fans
+    integer, allocatable :: order(:)
+    logical :: fans, sorted
     nan = nan_dp
     p = nan; q = nan; scal = nan; status = ray_bad_direction; nsteps = 0
     stat = stat_ok
@@ -773,9 +777,13 @@ contains
       allocate(rclear(n))
       call sweep_fans(dsm, n, s, l, nf, nt, rclear)
     end if
-    !$omp parallel do schedule(dynamic, 64) num_threads(nt) default(shared) private(k)
-    do k = 1, n
-      call trace_one(k)
+    ! the rays in an order that keeps the grid in cache (pi_ray_order; each ray's answer depends on
+    ! its own s, l and rclear alone and goes to its own column: the same results in any order)
+    allocate(order(n))
+    call ray_order(dsm, n, s, l, order, sorted)
+    !$omp parallel do schedule(dynamic, 64) num_threads(nt) default(shared) private(kk)
+    do kk = 1, n
+      call trace_one(order(kk))
     end do
     !$omp end parallel do
 

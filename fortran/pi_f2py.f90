@@ -375,6 +375,31 @@ subroutine core_dsm_sweep(ncols, nrows, hgt, lat0, lon0, dlat, dlon, a, f, inter
   call sweep_fans(dsm, n, s, l, fan, 1, rclear)
 end subroutine core_dsm_sweep
 
+!> The order in which core_dsm_trace traces n rays (tests):
+!> pi_ray_order::ray_order, order(n) 1-based, sorted 1 when the rays were
+!> sorted (0: the given order kept). Grid as core_dsm_trace (only its
+!> spacing, ellipsoid and heights are used).
+subroutine core_ray_order(ncols, nrows, hgt, lat0, lon0, dlat, dlon, a, f, interp, hmax, hmin, &
+                          n, s, l, order, sorted)
+  use pi_kinds, only: dp
+  use pi_dsm, only: dsm_t, dsm_attach
+  use pi_ray_order, only: ray_order
+  implicit none
+  integer, intent(in) :: ncols, nrows, interp, n
+  real(dp), intent(in), target :: hgt(ncols, nrows)
+  real(dp), intent(in) :: lat0, lon0, dlat, dlon, a, f, hmax, hmin, s(3, n), l(3, n)
+  integer, intent(out) :: order(n), sorted
+  real(dp), target :: nopyr(1)
+  integer, target :: nometa(3, 1)
+  type(dsm_t) :: dsm
+  logical :: srt
+  nopyr = 0.0_dp
+  nometa = 1
+  call dsm_attach(hgt, lat0, lon0, dlat, dlon, a, f, interp, hmax, hmin, nopyr, nometa, dsm)
+  call ray_order(dsm, n, s, l, order, srt)
+  sorted = merge(1, 0, srt)
+end subroutine core_ray_order
+
 !> The DSM per-ray codes as compiled (no_data, left_dsm, dsm_miss,
 !> not_converged, oscillation, step_limit), for Python's table check.
 subroutine core_dsm_codes(codes)
