@@ -5,11 +5,14 @@
 !> note 11).
 !>
 !> The output rclear(k) is a distance along ray k before which the ray meets
-!> no column of the DSM: no hit, no no-data point, no low point outside the
-!> grid, for every point of the ray with h >= H_min (0: no certificate).
-!> pi_dsm_fast's fast_from checks H_min < h <= H_max and h' < 0 at rclear(k),
-!> which covers the ray's lower points by the convexity of h along a line,
-!> and searches on from there. Only speed depends on how long the prefixes are.
+!> no column of the DSM: no hit and no no-data point, for every point of the
+!> ray with h >= H_min (0: no certificate). It may pass low points outside the
+!> grid: pi_dsm_fast's fast_from decides only hits and no-data points, and
+!> declines otherwise (exact_ray then searches the whole slab again and finds
+!> the LEFT_DSM point; docs/shin-park-notes.md, "Tenth look"). fast_from
+!> checks H_min < h <= H_max and h' < 0 at rclear(k), which covers the ray's
+!> lower points by the convexity of h along a line, and searches on from
+!> there. Only speed depends on how long the prefixes are.
 !>
 !> Why it holds, for the rays of a chunk of the fan (at most sweep_chunk_max
 !> consecutive rays) on one side of the nadir direction:
@@ -45,8 +48,11 @@
 !>    footprint quadrilateral of the two extreme rays (smallest and largest
 !>    tau) between the two ellipsoids, in grid (u, v), widened by 2 w_s and by
 !>    four times the curvature of its edges (Meusnier's 1 / cos(tilt)
-!>    included). Units of the corridor outside the grid or with no data are
-!>    columns up to H_max (an event happens there only below H_max).
+!>    included). Units of the corridor with no data are columns up to H_max
+!>    (an event happens there only below H_max); units outside the grid are
+!>    none (no hit or no-data point lies there), unless the grid spans so
+!>    nearly a turn of longitude that the corridor could reach its wrapped
+!>    copy (then columns up to H_max, as no-data).
 !> A chunk side gets no certificates (rclear = 0) where an assumption fails: a
 !> global grid, parallel rays, a fan plane nearly perpendicular to the nadir or
 !> tilted more than ~84 degrees, rays that start inside the raised ellipsoid or
@@ -215,7 +221,7 @@ contains
     real(dp), allocatable :: nv(:, :, :), nw(:, :, :)
     integer, allocatable :: rja(:), rjb(:), bidx(:), bstart(:), order(:)
     integer :: k, klo, khi, i, j, i0, i1, jlo, jhi, nunit, cap, b, nb, lo, hi, mid, kc
-    logical :: hit, anyu
+    logical :: hit, anyu, skip_out
     elig = cand
     if (.not. any(elig)) return
     o = 0.0_dp
@@ -301,6 +307,11 @@ contains
     w = w_off + lmax * lmax / (2.0_dp * rmin * ctilt) * (1.0_dp + tan(latm)) + 1.0e-9_dp * dsm%a &
         + 1.0e-12_dp * norm2(s)
     du = w / ((dsm%a + min(dsm%hmin, 0.0_dp) - dlo) * cos(latm) * dsm%dlon)
+    ! units outside the grid stop no ray (unit_bounds) when none of them can be a column of the grid
+    ! wrapped by a turn: the corners' u lie within a turn from uw, the meridian opposite the grid's
+    ! centre, which is -uw cells from both of the grid's edges, so the corridor's units reach a
+    ! wrapped copy of the grid only if du + 1.5 >= -uw (a grid spanning nearly 360 degrees)
+    skip_out = -dsm%uw > du + 2.0_dp
     dv = w / (rmin * abs(dsm%dlat))
     if (.not. (du < 1.0e6_dp .and. dv < 1.0e6_dp)) return
     ! ---- progress: along the plane's horizontal direction g, or along the rays' bisector d, whichever
@@ -483,29 +494,37 @@ contains
 
     !> q_min and the largest corner slope of unit (i, j) (its nodes in nv, nw), from its
     !> column's part that can lie within w_s of the plane (-huge slope, +huge q_min: none).
-    !> No data or outside the grid: a column up to H_max (a ray can only have an event
-    !> there below H_max).
+    !> No data: a column up to H_max (a ray can only have an event there below H_max).
+    !> Outside the grid: none when skip_out (no hit or no-data point can lie there; the
+    !> grid's edge slack, 8 ulp of pi in angle, is inside the delta-widened hull of the
+    !> edge units, delta >= 1e-12 a), else a column up to H_max.
     pure subroutine unit_bounds(i, j, qm, tc)
       integer, intent(in) :: i, j
       real(dp), intent(out) :: qm, tc
       real(dp) :: z, ztop, dz, db(4), dt(4), fc(10), f, flo, fhi, wp, x, y, cv(4), cr(4), eps
       integer :: ke, kf, nc, ev, eu
-      logical :: blk, near
+      logical :: blk, near, inside
       blk = .true.
       near = .false.
+      inside = .false.
       z = huge(1.0_dp)
       if (dsm%interp == interp_nearest) then
         if (i >= 0 .and. i <= dsm%nrows - 1 .and. j >= 0 .and. j <= dsm%ncols - 1) then
+          inside = .true.
           z = dsm%hgt(j + 1, i + 1)
           blk = .not. (z == z)
         end if
       else
         if (i >= 0 .and. i <= dsm%nrows - 2 .and. j >= 0 .and. j <= dsm%ncols - 2) then
+          inside = .true.
           z = max(max(dsm%hgt(j + 1, i + 1), dsm%hgt(j + 2, i + 1)), max(dsm%hgt(j + 1, i + 2), dsm%hgt(j + 2, i + 2)))
           blk = dsm%hgt(j + 1, i + 1) /= dsm%hgt(j + 1, i + 1) .or. dsm%hgt(j + 2, i + 1) /= dsm%hgt(j + 2, i + 1) &
              .or. dsm%hgt(j + 1, i + 2) /= dsm%hgt(j + 1, i + 2) .or. dsm%hgt(j + 2, i + 2) /= dsm%hgt(j + 2, i + 2)
         end if
       end if
+      qm = huge(1.0_dp)
+      tc = -huge(1.0_dp)
+      if (.not. inside .and. skip_out) return
       ztop = dsm%hmax
       if (.not. blk) ztop = min(z, dsm%hmax)
       dz = ztop - dsm%hmin

@@ -4,11 +4,13 @@ clear distances for fans of rays that share a focal point.
 The sweep may only shorten the search, never skip an event, so the checks are:
 
 * soundness: for every ray, the certified clear distance ``rclear`` is at most
-  the distance of the ray's first event (hit, no-data point, or the point where
-  it leaves the DSM) found by the exact mode without the sweep (itself checked
-  against the exhaustive reference in test_dsm_references.py), and, on small
-  scenes, at most the exhaustive reference's own first event
-  (tests/references/dsm_exhaustive.py, independent of the Fortran);
+  the distance of the ray's first hit or no-data point found by the exact mode
+  without the sweep (itself checked against the exhaustive reference in
+  test_dsm_references.py), and, on small scenes, at most the exhaustive
+  reference's own first event (tests/references/dsm_exhaustive.py, independent
+  of the Fortran). It may pass the point where a ray is first low outside the
+  grid (LEFT_DSM): the certified search never decides that event, it hands the
+  ray back to the whole-slab search;
 * the exact mode with fans gives the same status as without, and distances
   within twice the mode's tolerance (each answer is within 1e-6 m of the entry);
 * usefulness: which fans get certificates, and how far before the hit the
@@ -36,7 +38,6 @@ from planet_intersect.geodetic import geodetic_to_ecef
 EXACT = 1
 TOL_R = 1e-6                                   # m: the exact mode's tolerance along the ray
 HIT, NO_DATA, LEFT_DSM = int(pi.DSMStatus.HIT), int(pi.DSMStatus.NO_DATA), int(pi.DSMStatus.LEFT_DSM)
-EVENTS = (HIT, NO_DATA, LEFT_DSM)
 
 
 def _unit(l):
@@ -71,7 +72,10 @@ def check(dsm, s, l, fan, min_certified=0.0):
     st0, r0, _ = trace(dsm, s, l, 0)
     inc = trace.incidence
     st1, r1, _ = trace(dsm, s, l, fan)
-    ev = np.isin(st0, EVENTS)
+    # hits and no-data points: the certificate may pass the first low point outside the grid
+    # (LEFT_DSM), which the certified search never decides itself (it declines; shin-park-notes,
+    # "Tenth look"); the equality below covers those rays' answers
+    ev = np.isin(st0, (HIT, NO_DATA))
     bad = np.flatnonzero(ev & (rc > r0))
     assert bad.size == 0, (f"{bad.size} rays certified past their first event: rclear - r = "
                            f"{(rc - r0)[bad[:5]]} m, status {st0[bad[:5]]}")
@@ -243,14 +247,15 @@ def test_certified_rays_skip_the_short_pieces_far_end(city, interp, median, mean
     assert np.mean(n[cert]) < mean
 
 
-@pytest.mark.parametrize("zenith,azimuth,median", [(9.0, 90.0, 2), (30.0, 270.0, 5), (20.0, 60.0, 4)])
+@pytest.mark.parametrize("zenith,azimuth,median", [(9.0, 90.0, 2), (30.0, 270.0, 2), (20.0, 60.0, 4)])
 def test_meridian_walls_are_crossed_in_closed_form(zenith, azimuth, median):
     """A "nearest" wall between two columns is a meridian plane: the search takes the ray's crossing
     of it in closed form (pi_dsm_fast's wall_cross, to ~1e-7 m) and classifies one exact point just
     past it, where halving down to 1e-6 m leaves converted ~3 more points. Median conversions of the
-    rays that hit such a wall: 2, 5 and 4 here (the certified point and that one at 9 deg; at 30 deg
-    half of them hit beyond the certified ray's first piece; the 60 deg lines get no certificates),
-    5, 8 and 7 before; a roof hit takes 2, 2 and 3. Against the independent exhaustive
+    rays that hit such a wall: 2, 2 and 4 here (the certified point and that one; the 60 deg lines
+    get no certificates), 5, 8 and 7 before the closed form; at 30 deg 5 while units outside the
+    grid stopped the certificates (test_certificates_pass_over_the_grid_edge); a roof hit takes 2,
+    2 and 3. Against the independent exhaustive
     reference, every ray: the same status, and each hit at most TOL_R after the reference's entry
     (which it puts exactly on the boundary) and at most 2e-7 m before it (the two geodesies place a
     wall's crossing up to ~8e-8 m apart here, with the halving search as with the closed form)."""
@@ -276,6 +281,26 @@ def test_meridian_walls_are_crossed_in_closed_form(zenith, azimuth, median):
     merid = hit & ref["wall"] & (np.abs(u - np.floor(u) - 0.5) < 1e-6)
     assert merid.sum() >= 100, merid.sum()
     assert np.median(n[merid]) == median, np.bincount(n[merid])
+
+
+@pytest.mark.parametrize("zenith,azimuth", [(30.0, 270.0), (30.0, 90.0)])
+def test_certificates_pass_over_the_grid_edge(zenith, azimuth):
+    """Units of the corridor outside the grid stop no ray (no hit or no-data point can lie there):
+    a ray that crosses H_max beyond the sensor-side edge of the grid gets a certificate up to its
+    hit, as the others do. While they were columns up to H_max (a review found), such rays were
+    stopped ~1.8 m before even reaching H_max, fast_from threw the certificate away, and they took
+    5 conversions instead of 2: 51 % and 64 % of the wall hits here, whose certificates stopped a
+    median 44 and 56 m before the hit. Now every certified hit is within 2 m of its certificate."""
+    g = sd.building_scene(n=128, seed=8)
+    g.pop("roof_id")
+    dsm = _dsm(g, "nearest", holes=6, seed=9)
+    s, l, npx = oblique_lines(g, zenith, azimuth, lines=12)
+    frac, gaps, rc = check(dsm, s, l, npx)
+    st, r, n = trace(dsm, s, l, npx)
+    assert frac > 0.9, frac                               # (0.95 and 0.97: rays that leave get none)
+    # from the certificate to the hit: within a cell's horizontal travel (1 m / sin 30 deg)
+    assert gaps.size > 800 and gaps.max() < 2.1, (gaps.size, np.sort(gaps)[-5:])
+    assert np.percentile(n[(st == HIT) & (rc > 0)], 90) <= 3, np.bincount(n[(st == HIT) & (rc > 0)])
 
 
 @pytest.mark.parametrize("interp", ["nearest", "bilinear"])
@@ -322,7 +347,8 @@ def test_orbit_pushbroom_and_frame_rows(city):
 
 @pytest.mark.parametrize("interp", ["nearest", "bilinear"])
 def test_against_the_exhaustive_reference(interp):
-    """rclear <= the first event of the independent exhaustive stepping reference."""
+    """rclear <= the first hit or no-data point of the independent exhaustive stepping reference
+    (a certificate may pass the first low point outside the grid: see check)."""
     from references.dsm_exhaustive import HIT as X_HIT, LEFT_DSM as X_LEFT, NO_DATA as X_ND, exhaustive_first_hit
 
     g = sd.building_scene(n=128, seed=8)
@@ -332,8 +358,9 @@ def test_against_the_exhaustive_reference(interp):
     rc = sweep(dsm, s, l, 40)
     ref = exhaustive_first_hit(dsm.heights, g["lat_first"], g["lon_first"], g["dlat"], g["dlon"], s, l,
                                interpolation=interp)
-    ev = np.isin(ref["status"], (X_HIT, X_ND, X_LEFT))
-    r_ev = np.where(ref["status"] == X_LEFT, ref["r_low_outside"], ref["r"])
+    ev = np.isin(ref["status"], (X_HIT, X_ND))
+    r_ev = ref["r"]
+    assert (ref["status"] == X_LEFT).sum() > 0            # some rays do leave (their certificates are free)
     assert (rc > 0).sum() >= 60
     bad = np.flatnonzero(ev & (rc > r_ev + 1e-9))
     assert bad.size == 0, (rc - r_ev)[bad[:5]]
