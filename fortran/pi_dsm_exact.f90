@@ -329,14 +329,18 @@ contains
     end function band_columns
   end subroutine polar_box
 
-  !> Exact first hit for one ray (l unit, s above the surface).
-  pure subroutine exact_ray(dsm, s, l, res)
+  !> Exact first hit for one ray (l unit, s above the surface). clear = .true.
+  !> (the fast path's res%slab_clear: it searched the whole slab and found no hit
+  !> and no no-data point) skips the search of step 2; the start and end points
+  !> are still settled here, then step 4 looks for the first low point outside.
+  pure subroutine exact_ray(dsm, s, l, res, clear)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: s(3), l(3)
     type(dsm_ray_t), intent(inout) :: res
+    logical, intent(in), optional :: clear
     type(rpt_t) :: pa, pb, pm, p_in, p_end, stack(exact_depth)
     real(dp) :: r_in, r_end, r_far, hs, lat, lon, h, dh, hlow, hb, r, g, dr, hc, rsplit, rm
-    logical :: found, out, done, edge
+    logical :: found, out, done, edge, skip
     integer :: code, nst, nseg, it, cell
     res%nsteps = 0
     ! ---- 1. the search interval
@@ -370,7 +374,9 @@ contains
     pa = p_in
     pb = p_end
     nst = 0
-    do nseg = 1, exact_maxseg
+    skip = .false.
+    if (present(clear)) skip = clear
+    do nseg = 1, merge(0, exact_maxseg, skip)
       call segment_bounds(dsm, s, l, pa, pb, hlow, hb, out, cell, rsplit)
       if (hlow > hb) then                                 ! nothing to meet in this segment
         call next_segment(pa, pb, stack, nst)
@@ -470,7 +476,7 @@ contains
       stack(nst) = pb
       pb = pm
     end do
-    if (nst >= 0) then
+    if (nst >= 0 .and. .not. skip) then
       res%status = ray_step_limit
       return
     end if
@@ -795,7 +801,7 @@ contains
       type(dsm_ray_t) :: res
       real(dp) :: ln, lu(3), lat, lon, h, hs, dh
       integer :: code, nfast
-      logical :: ok
+      logical :: ok, clear
       res%p = nan; res%lat = nan; res%lon = nan; res%h = nan; res%hs = nan; res%r = nan
       res%incidence = nan; res%q = nan; res%qlat = nan; res%qlon = nan; res%qh = nan; res%qr = nan
       res%nsteps = 0
@@ -826,7 +832,8 @@ contains
           end if
           if (.not. ok) then
             nfast = res%nsteps
-            call exact_ray(dsm, s(:, k), lu, res)
+            clear = res%slab_clear                        ! (a copy: no aliasing with res)
+            call exact_ray(dsm, s(:, k), lu, res, clear)
             res%nsteps = res%nsteps + nfast
           end if
         else if (method == dsm_method_exact_reference) then

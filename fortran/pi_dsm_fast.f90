@@ -29,15 +29,16 @@
 !> The fast path declines (ok = .false.; the caller then runs exact_ray) when
 !> its assumptions do not hold: a slab longer than fast_maxlen, a latitude or
 !> longitude widening above fast_maxdv cells (near the poles, huge spans), a
-!> ray that meets no data over the slab but has to look for the first low
-!> point outside the DSM (the LEFT_DSM search), or its segment limit. So
-!> correctness never depends on its coverage; the statuses and distances equal
-!> exact_ray's to refine_tol (tests/test_dsm_fast.py).
+!> ray that meets no hit and no data over the slab and whose first low point
+!> outside the DSM left_search cannot pin down (then res%slab_clear: exact_ray
+!> skips its own search for hits; docs/shin-park-notes.md, "Eleventh look"),
+!> or its segment limit. So correctness never depends on its coverage; the
+!> statuses and distances equal exact_ray's to refine_tol (tests/test_dsm_fast.py).
 module pi_dsm_fast
   use pi_kinds, only: dp
   use pi_status
   use pi_vector, only: pi, axis_distance, far_distance
-  use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, pt_ok, pt_nodata
+  use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, pt_ok, pt_nodata, pt_outside
   use pi_follow, only: dsm_ray_t, ray_geo, level_crossing_back, ellipsoid_entry, set_hit, set_event, settle_start, &
                        refine_tol, newton_tol
   use pi_geodetic, only: ecr_to_geodetic_near
@@ -79,6 +80,15 @@ module pi_dsm_fast
   integer, parameter :: fast_maxconv = 1000
   !> outcomes of a piece search
   integer, parameter :: out_clear = 0, out_decided = 1, out_declined = 2
+  !> pieces a slab may have for left_search (more: exact_ray's search for the first point outside)
+  integer, parameter :: left_maxpc = 16
+  !> margin of left_search's edge tests beyond the models' widening (cells: dsm_grid_uv's rounding
+  !> of u, v near the grid, a few ulps of pi / dlon, as segment_bounds' wu)
+  real(dp), parameter :: left_marg = 1.0e-9_dp
+  !> widest interval left_search halves to refine_tol on the lookup's classes (units of length:
+  !> a crossing pinned by the models' rounding margin only, ~1e-6-1e-5 m on Earth; wider ones,
+  !> rays grazing an edge, are exact_ray's)
+  real(dp), parameter :: left_maxw = 1.0e-4_dp
 
   !> an exact ray point: r, geodetic lat, lon, h, dh/dr, grid u, v, the
   !> ellipsoid normal there (ECR)
@@ -779,6 +789,33 @@ contains
     call search_slab(dsm, s, l, x_in, r_in, x_end, r_end, res, ok)
   end subroutine fast_ray
 
+  !> The slab's start for left_search on a certified ray: r_in, the ray's first point with
+  !> h <= H_max (0 when s is there already, as fast_ray finds it), and x exact at or (by
+  !> ~1e-9 a) before it; found = .false. when there is none. neval counts conversions.
+  pure subroutine slab_start(dsm, s, l, x, r_in, found, neval)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3)
+    type(xpt_t), intent(out) :: x
+    real(dp), intent(out) :: r_in
+    logical, intent(out) :: found
+    integer, intent(inout) :: neval
+    real(dp) :: lat, lon, h, dh
+    found = .true.
+    r_in = 0.0_dp
+    if (dot_product(s, s) > (dsm%a + max(dsm%hmax, 0.0_dp) + 1.0e-9_dp * dsm%a)**2) then
+      h = huge(1.0_dp)
+    else
+      call ray_geo(dsm, s, l, 0.0_dp, lat, lon, h, dh)
+      neval = neval + 1
+    end if
+    if (h <= dsm%hmax) then
+      call eval_x(dsm, s, l, 0.0_dp, x)
+      neval = neval + 1
+    else
+      call fast_entry(dsm, s, l, 0.0_dp, dsm%hmax, x, r_in, found, neval)
+    end if
+  end subroutine slab_start
+
   !> fast_ray's answer for a ray known to meet nothing before rc (pi_dsm_sweep's
   !> certificate covers the ray's points with h >= H_min). used = .false.
   !> (nothing decided; res%nsteps counts the conversion made) unless the point
@@ -847,7 +884,9 @@ contains
       ok = .false.
       return
     end if
-    call search_slab(dsm, s, l, x1, x1%r, x_end, r_end, res, ok)
+    ! (from the certificate, not the slab's start: a certificate may pass low points outside
+    ! the grid, pi_dsm_sweep, so left_search starts at the slab's true start)
+    call search_slab(dsm, s, l, x1, x1%r, x_end, r_end, res, ok, x_in)
   end subroutine fast_from
 
   !> The slab's end after r_from: r_end, the first crossing of H_min (or, when
@@ -877,17 +916,25 @@ contains
   !> before r_end), nothing before r_in: pieces in ray order, each searched
   !> depth-first on cheap points, then the end point; ok = .false. where the
   !> fast path declines (as fast_ray).
-  pure subroutine search_slab(dsm, s, l, x_in, r_in, x_end_in, r_end, res, ok)
+  pure subroutine search_slab(dsm, s, l, x_in, r_in, x_end_in, r_end, res, ok, xcert)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: s(3), l(3), r_in, r_end
     type(xpt_t), intent(in) :: x_in, x_end_in
     type(dsm_ray_t), intent(inout) :: res
     logical, intent(out) :: ok
-    type(xpt_t) :: x_end, xa, xb
-    real(dp) :: rho, lp, rnext, hs
-    integer :: k, npc, outcome, nseg, code
+    !> present (fast_from): r_in is not the slab's start but a point past a line-sweep
+    !> certificate, xcert the exact point at the certificate (at or before x_in). A slab
+    !> found clear is searched for its first point outside the grid (left_search) from the
+    !> slab's true start, found then (a certificate may pass points outside the grid)
+    type(xpt_t), intent(in), optional :: xcert
+    type(xpt_t) :: x_end, xa, xb, pe(0:left_maxpc), pf(0:left_maxpc + 2), x0
+    real(dp) :: rho, lp, rnext, hs, r0
+    integer :: k, npc, outcome, nseg, code, ne, nf
+    logical :: done, found
     ok = .true.
     x_end = x_end_in
+    pe(0) = x_in
+    ne = 0
     ! ---- 2. pieces in ray order, each searched depth-first on cheap points
     ! piece length: at least fast_piece, longer on coarse grids, where the
     ! widenings psi''L^2/8 (|psi''| ~ 3/M_min^2) and L^2/(4 rho^2) stay near 0.01 cells
@@ -914,6 +961,8 @@ contains
         ok = .false.
         return
       end if
+      ne = ne + 1                                         ! (past left_maxpc pieces: no left_search)
+      if (ne <= left_maxpc) pe(ne) = xb
     end do
     if (x_end%r < r_end) then                            ! the tail: its end exactly, then its search
       xa = x_end
@@ -925,6 +974,8 @@ contains
         ok = .false.
         return
       end if
+      ne = ne + 1
+      if (ne <= left_maxpc) pe(ne) = x_end
     end if
     ! ---- the interval is clear up to r_end: the end point decides (as exact_ray)
     call dsm_height(dsm, x_end%lat, x_end%lon, hs, code)
@@ -932,9 +983,192 @@ contains
       call set_hit(dsm, s, l, r_end, ray_hit, res)
       return
     end if
-    ! ---- no hit, no no-data: the search for the first low point outside is exact_ray's
+    ! ---- no hit, no no-data: the first low point outside, where the pieces' models find it
+    ! (left_search), else exact_ray's search, which need not search the slab for hits again
+    ! (res%slab_clear)
+    if (ne >= 1 .and. ne <= left_maxpc) then
+      if (.not. present(xcert)) then
+        call left_search(dsm, s, l, pe(0:ne), r_in, res, done)
+        if (done) return
+      else
+        ! the slab's true start, then the certificate's point and the pieces searched from it
+        call slab_start(dsm, s, l, x0, r0, found, res%nsteps)
+        if (found .and. r0 < xcert%r) then
+          pf(0) = x0
+          nf = 0
+          if (xcert%r < pe(0)%r) then
+            nf = 1
+            pf(1) = xcert
+          end if
+          pf(nf + 1:nf + 1 + ne) = pe(0:ne)
+          call left_search(dsm, s, l, pf(0:nf + 1 + ne), r0, res, done)
+          if (done) return
+        end if
+      end if
+    end if
+    res%slab_clear = .true.
     ok = .false.
   end subroutine search_slab
+
+  !> The first low point outside the DSM's defined area of a ray whose slab [r_in, r_end]
+  !> holds no hit and no no-data point (search_slab): LEFT_DSM there, as exact_ray's step 4
+  !> finds it, at most refine_tol after the first point outside (as exact_ray's).
+  !> pe(0:ne) are the pieces' exact ends in ray order (pe(0) at or just before r_in, pe(ne)
+  !> at r_end). On each piece's linear (u, v) models, widened by the piece's du, dv and
+  !> left_marg cells, the first r where the ray may be outside (r_lo) and the first where
+  !> it surely is (r_hi) are found per edge in closed form; [r_lo, r_hi] becomes a piece
+  !> of its own (two conversions; its widening ~1e-14 rad of rounding), whose r_hi is
+  !> classified by one conversion. done = .false. (nothing set) where that does not
+  !> settle it: a global grid, a piece without models, a ray still possibly outside where
+  !> it is not surely outside (along or back from an edge, grazing), a crossing not pinned
+  !> to left_maxw (the conversions' rounding margin, 1e-14 rad, is ~2.6e-7 m on Earth: a
+  !> ray crossing an edge at 30 deg is pinned to ~8e-7 m, at 9 deg to ~3e-6 m, then halved
+  !> on the lookup's classes to refine_tol), a classification that
+  !> disagrees, or no point outside (a MISS):
+  !> exact_ray's step 4 then decides.
+  pure subroutine left_search(dsm, s, l, pe, r_in, res, done)
+    type(dsm_t), intent(in) :: dsm
+    real(dp), intent(in) :: s(3), l(3), r_in
+    type(xpt_t), intent(in) :: pe(0:)
+    type(dsm_ray_t), intent(inout) :: res
+    logical, intent(out) :: done
+    type(piece_t) :: pc
+    type(xpt_t) :: ya, yb, x, xm
+    real(dp) :: lo(2), hi(2), r_lo, r_hi, r_lo2, r_hi2, hs, rm
+    integer :: k, code, it
+    logical :: pok
+    done = .false.
+    if (dsm%global) return
+    if (dsm%interp == interp_nearest) then
+      lo = [-0.5_dp - dsm%eu, -0.5_dp - dsm%ev]
+      hi = [dsm%ncols - 0.5_dp + dsm%eu, dsm%nrows - 0.5_dp + dsm%ev]
+    else
+      lo = [-dsm%eu, -dsm%ev]
+      hi = [dsm%ncols - 1.0_dp + dsm%eu, dsm%nrows - 1.0_dp + dsm%ev]
+    end if
+    do k = 1, size(pe) - 1
+      if (.not. (pe(k)%r > pe(k - 1)%r)) return
+      call make_piece(dsm, s, l, pe(k - 1), pe(k), pc, pok)
+      if (.not. pok) return
+      call edge_exit(pc, max(r_in, pe(k - 1)%r), lo, hi, r_lo, r_hi)
+      if (r_lo > pe(k)%r) cycle                           ! surely inside all along the piece
+      if (.not. (r_hi <= pe(k)%r)) return                 ! possibly out, never surely: exact_ray's
+      ! [r_lo, r_hi] as a piece of its own, exact ends
+      if (r_lo == pe(k - 1)%r) then
+        ya = pe(k - 1)
+      else
+        call eval_x(dsm, s, l, r_lo, ya, pe(k - 1))
+        res%nsteps = res%nsteps + 1
+      end if
+      if (r_hi == pe(k)%r) then
+        yb = pe(k)
+      else
+        call eval_x(dsm, s, l, r_hi, yb, pe(k - 1))
+        res%nsteps = res%nsteps + 1
+      end if
+      if (r_hi > r_lo) then
+        call make_piece(dsm, s, l, ya, yb, pc, pok)
+        if (.not. pok) return
+        call edge_exit(pc, ya%r, lo, hi, r_lo2, r_hi2)
+        if (.not. (r_lo2 <= yb%r .and. r_hi2 <= yb%r .and. r_hi2 - r_lo2 <= left_maxw)) return
+      else
+        r_lo2 = r_lo
+        r_hi2 = r_hi                                      ! possibly and surely out from the same point
+      end if
+      ! the point at r_hi2, surely outside on the models: outside by the lookup, or exact_ray's
+      if (r_hi2 == yb%r) then
+        x = yb
+      else
+        call eval_x(dsm, s, l, r_hi2, x, ya)
+        res%nsteps = res%nsteps + 1
+      end if
+      call dsm_height(dsm, x%lat, x%lon, hs, code)
+      if (code /= pt_outside) return
+      ! [r_lo2, r_hi2] holds the first point outside (the models: inside before r_lo2); wider
+      ! than refine_tol where the conversions' rounding margin (1e-14 rad, ~2.6e-7 m on Earth)
+      ! is large against the ray's rate across the edge (steep rays): halved on the lookup's
+      ! classes (one crossing of one edge line within a few um: the classes change once, up to
+      ! the lookups' own rounding, ~1e-8 m)
+      do it = 1, 60
+        if (r_hi2 - r_lo2 <= refine_tol) exit
+        rm = 0.5_dp * (r_lo2 + r_hi2)
+        call eval_x(dsm, s, l, rm, xm, ya)
+        res%nsteps = res%nsteps + 1
+        call dsm_height(dsm, xm%lat, xm%lon, hs, code)
+        if (code == pt_outside) then
+          r_hi2 = rm
+        else
+          r_lo2 = rm
+        end if
+      end do
+      if (.not. (r_hi2 - r_lo2 <= refine_tol)) return
+      call set_event(dsm, s, l, r_hi2, ray_left_dsm, res)
+      done = .true.
+      return
+    end do
+  end subroutine left_search
+
+  !> On piece pc's linear models of u and v (widened by du, dv and left_marg cells), from r0:
+  !> r_lo, the first r where the ray may be outside the area lo(1) <= u <= hi(1),
+  !> lo(2) <= v <= hi(2), and r_hi, the first r where it surely is (+huge: none before the
+  !> piece's end; each as the earliest over the four edges, in closed form).
+  pure subroutine edge_exit(pc, r0, lo, hi, r_lo, r_hi)
+    type(piece_t), intent(in) :: pc
+    real(dp), intent(in) :: r0, lo(2), hi(2)
+    real(dp), intent(out) :: r_lo, r_hi
+    real(dp) :: c0, g, w, len
+    integer :: ax, side
+    r_lo = huge(1.0_dp)
+    r_hi = huge(1.0_dp)
+    len = pc%b%r - pc%a%r
+    if (.not. (len > 0.0_dp)) then
+      r_lo = r0
+      return
+    end if
+    do ax = 1, 2
+      if (ax == 1) then
+        c0 = pc%a%u + (r0 - pc%a%r) * pc%ilen * (pc%b%u - pc%a%u)     ! the model at r0
+        g = (pc%b%u - pc%a%u) * pc%ilen                                 ! and its rate per unit r
+        w = pc%du + left_marg
+      else
+        c0 = pc%a%v + (r0 - pc%a%r) * pc%ilen * (pc%b%v - pc%a%v)
+        g = (pc%b%v - pc%a%v) * pc%ilen
+        w = pc%dv + left_marg
+      end if
+      do side = 1, 2
+        ! outward distance of the model from the edge, d(r) = d0 + gd (r - r0): may be out where
+        ! d >= -w, surely out where d > w
+        if (side == 1) then
+          call edge_first(lo(ax) - c0, -g, w, r0, r_lo, r_hi)
+        else
+          call edge_first(c0 - hi(ax), g, w, r0, r_lo, r_hi)
+        end if
+      end do
+    end do
+  end subroutine edge_exit
+
+  !> One edge of edge_exit: the model's outward distance from it d(r) = d0 + gd (r - r0)
+  !> (cells); r_lo and r_hi lowered to where d >= -w (may be out) and just past d > w (surely
+  !> out), when that comes after r0 (d0 already there: r0).
+  pure subroutine edge_first(d0, gd, w, r0, r_lo, r_hi)
+    real(dp), intent(in) :: d0, gd, w, r0
+    real(dp), intent(inout) :: r_lo, r_hi
+    real(dp) :: r
+    if (d0 >= -w) then
+      r_lo = min(r_lo, r0)
+    else if (gd > 0.0_dp) then
+      r = r0 + (-w - d0) / gd
+      if (r < huge(1.0_dp)) r_lo = min(r_lo, r)
+    end if
+    if (d0 > w) then
+      r_hi = min(r_hi, r0)
+    else if (gd > 0.0_dp) then
+      ! just past d = w (the nudge: the rounding of r on the ray's scale)
+      r = r0 + (w - d0) / gd
+      r = r + 1.0e-15_dp * (abs(r) + 1.0_dp) + 1.0e-3_dp * refine_tol
+      if (r < huge(1.0_dp)) r_hi = min(r_hi, r)
+    end if
+  end subroutine edge_first
 
   !> Depth-first search of the piece [xa, xb] (exact ends) for the first hit or
   !> no-data point, in ray order, on cheap points. At level 1 a segment that

@@ -41,6 +41,10 @@ module pi_follow
     real(dp) :: p(3), lat, lon, h, hs, r, incidence
     !> no-data / left-the-DSM event: first low point over no-data or outside
     real(dp) :: q(3), qlat, qlon, qh, qr
+    !> set by the exact mode's fast path when it declines with the slab searched to
+    !> its end and found clear of hits and no-data points (pi_dsm_fast's
+    !> search_slab): exact_ray then looks only for the first low point outside
+    logical :: slab_clear = .false.
   end type dsm_ray_t
 
 contains

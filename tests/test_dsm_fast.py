@@ -340,3 +340,36 @@ def test_hit_fields_near_a_pole():
     dlon = np.abs(np.angle(np.exp(1j * (lonr - scal[1][hit]))))
     dlat = np.abs(np.arctan2(sphi, cphi) - scal[0][hit])
     assert dlon.max() < 1e-13 and dlat.max() < 1e-13, (dlon.max(), dlat.max())
+
+
+@pytest.mark.parametrize("interp", ["nearest", "bilinear"])
+def test_rays_that_leave_the_dsm(interp):
+    """A ray that leaves the DSM without a hit: the fast path searches its whole slab, finds no hit
+    and no no-data point, then finds the first point outside on its pieces' models (left_search:
+    the first r where the widened models may be past an edge and the first where they surely are,
+    in closed form, pinned on a piece of its own and classified by one conversion). Where that does
+    not settle it, exact_ray's search for the first point outside runs without its search of the
+    slab for hits (res%slab_clear). An oblique scan at 30 deg across a whole 256^2 scene, whose far
+    ends run out of the grid: the same statuses as exact_ray, the LEFT_DSM points within TOL_R of
+    its, and ~6 conversions a leaving ray where exact_ray alone takes ~50 (before: the fast path's
+    on top of all of exact_ray's)."""
+    g = sd.building_scene(n=256, seed=8)
+    g.pop("roof_id")
+    dsm = pi.GeodeticDSM.from_array(g["heights"], g["lat_first"], g["lon_first"], g["dlat"], g["dlon"],
+                                    interpolation=interp)
+    sen = sd.ObliqueScan(g, zenith=30.0, azimuth=90.0, margin=8)
+    k = np.linspace(0, sen.nlines - 1, 12).astype(int)
+    parts = [sen.rays(int(i), int(i) + 1) for i in k]
+    s = np.concatenate([p[0] for p in parts])
+    l = np.concatenate([p[1] for p in parts])
+    frac, counts, n_ref, n_ex = compare(dsm, s, l, 0.95)
+    st_ref, r_ref, n_ref = trace(dsm, s, l, REFERENCE)
+    st_ex, r_ex, n_ex = trace(dsm, s, l, EXACT)
+    st_f, r_f, _ = trace(dsm, s, l, FAST_ONLY)
+    left = st_ref == LEFT_DSM
+    assert left.sum() >= 50, left.sum()
+    assert np.mean(st_f[left] == LEFT_DSM) > 0.9, np.mean(st_f[left] == LEFT_DSM)   # decided by left_search
+    assert np.mean(n_ex[left]) < 10.0 and np.mean(n_ref[left]) > 40.0, (np.mean(n_ex[left]), np.mean(n_ref[left]))
+    # each event point is outside (the lookup) and the point refine_tol before it is not past the
+    # references' first outside point by more than TOL_R: |r - r_ref| <= TOL_R (compare) covers it
+    assert np.max(np.abs(r_ex[left] - r_ref[left])) <= TOL_R
