@@ -89,6 +89,9 @@ module pi_dsm_fast
   !> a crossing pinned by the models' rounding margin only, ~1e-6-1e-5 m on Earth; wider ones,
   !> rays grazing an edge, are exact_ray's)
   real(dp), parameter :: left_maxw = 1.0e-4_dp
+  !> left_search and res%slab_clear only for a slab that starts inside the area by this many cells
+  !> and where the ray descends through H_max at least this steeply (dh/dr; 1e-3: 0.06 deg)
+  real(dp), parameter :: left_start_marg = 1.0e-3_dp, left_min_dh = 1.0e-3_dp
 
   !> an exact ray point: r, geodetic lat, lon, h, dh/dr, grid u, v, the
   !> ellipsoid normal there (ECR)
@@ -986,29 +989,57 @@ contains
     ! ---- no hit, no no-data: the first low point outside, where the pieces' models find it
     ! (left_search), else exact_ray's search, which need not search the slab for hits again
     ! (res%slab_clear)
+    ! Only where the slab starts inside the area and the ray crosses H_max there at a clear
+    ! angle (a review: where it starts outside, a touch of the area shorter than refine_tol, a
+    ! ray through a corner node below the surface, was a hit exact_ray finds and this search
+    ! may step over; where it grazes H_max, the two searches' slab starts differ by up to mm,
+    ! and a hit ~1e-9 m deep between them was lost): elsewhere exact_ray decides, as before.
+    ok = .false.
     if (ne >= 1 .and. ne <= left_maxpc) then
       if (.not. present(xcert)) then
+        if (.not. left_start_ok(dsm, pe(0))) return
         call left_search(dsm, s, l, pe(0:ne), r_in, res, done)
-        if (done) return
+        if (done) then
+          ok = .true.
+          return
+        end if
       else
         ! the slab's true start, then the certificate's point and the pieces searched from it
         call slab_start(dsm, s, l, x0, r0, found, res%nsteps)
-        if (found .and. r0 < xcert%r) then
-          pf(0) = x0
-          nf = 0
-          if (xcert%r < pe(0)%r) then
-            nf = 1
-            pf(1) = xcert
-          end if
-          pf(nf + 1:nf + 1 + ne) = pe(0:ne)
-          call left_search(dsm, s, l, pf(0:nf + 1 + ne), r0, res, done)
-          if (done) return
+        if (.not. (found .and. r0 < xcert%r)) return
+        if (.not. left_start_ok(dsm, x0)) return
+        pf(0) = x0
+        nf = 0
+        if (xcert%r < pe(0)%r) then
+          nf = 1
+          pf(1) = xcert
+        end if
+        pf(nf + 1:nf + 1 + ne) = pe(0:ne)
+        call left_search(dsm, s, l, pf(0:nf + 1 + ne), r0, res, done)
+        if (done) then
+          ok = .true.
+          return
         end if
       end if
+      res%slab_clear = .true.
     end if
-    res%slab_clear = .true.
-    ok = .false.
   end subroutine search_slab
+
+  !> True when the exact point x at (or ~1e-9 a before) a slab's start lies inside the DSM's
+  !> defined area by more than left_start_marg cells and the ray descends there at least as
+  !> steeply as left_min_dh (search_slab's conditions for left_search and res%slab_clear).
+  pure function left_start_ok(dsm, x) result(okay)
+    type(dsm_t), intent(in) :: dsm
+    type(xpt_t), intent(in) :: x
+    logical :: okay
+    real(dp) :: lo, m
+    lo = 0.0_dp                                           ! the area's edge beyond the edge nodes
+    if (dsm%interp == interp_nearest) lo = -0.5_dp
+    m = left_start_marg
+    okay = x%dh <= -left_min_dh .and. .not. dsm%global &
+           .and. x%u > lo + m .and. x%u < dsm%ncols - 1 - lo - m &
+           .and. x%v > lo + m .and. x%v < dsm%nrows - 1 - lo - m
+  end function left_start_ok
 
   !> The first low point outside the DSM's defined area of a ray whose slab [r_in, r_end]
   !> holds no hit and no no-data point (search_slab): LEFT_DSM there, as exact_ray's step 4

@@ -373,3 +373,44 @@ def test_rays_that_leave_the_dsm(interp):
     # each event point is outside (the lookup) and the point refine_tol before it is not past the
     # references' first outside point by more than TOL_R: |r - r_ref| <= TOL_R (compare) covers it
     assert np.max(np.abs(r_ex[left] - r_ref[left])) <= TOL_R
+
+
+def test_leaving_search_keeps_exact_rays_touches():
+    """left_search and the skipped hit search only where the slab starts inside the area by 1e-3
+    cells and the ray crosses H_max at dh/dr <= -1e-3. A review of the first version found rays
+    that exact_ray (and the exhaustive reference) call hits, through contacts shorter than
+    refine_tol that the fast path's search may step over, turned LEFT_DSM or MISS: (a) the corner
+    pixel of an oblique scan passing through the grid's corner node 2.4 m below the surface, from
+    outside to outside; (b) a ray through a corner node 1e-6 m below the surface; (c) a ray 1e-6 m
+    below a bilinear peak node; (d) a nearly horizontal ray grazing H_max (1.8e-6 rad) 1e-3 m before
+    a roof's edge, where the two searches' slab starts differ. Each now takes exact_ray's answer."""
+    cases = []
+    g = sd.building_scene(n=256, seed=8)
+    g.pop("roof_id")
+    dsm = pi.GeodeticDSM.from_array(g["heights"], g["lat_first"], g["lon_first"], g["dlat"], g["dlon"],
+                                    interpolation="bilinear")
+    sen = sd.ObliqueScan(g, zenith=60, azimuth=45, margin=0)
+    s, l = sen.rays(sen.nlines - 1, sen.nlines)
+    cases.append((dsm, s[-1], l[-1]))
+    g2 = sd.building_scene(n=32, seed=4)
+    g2.pop("roof_id")
+    dsm2 = pi.GeodeticDSM.from_array(g2["heights"], g2["lat_first"], g2["lon_first"], g2["dlat"], g2["dlon"],
+                                     interpolation="bilinear")
+    cases.append((dsm2, np.array([507942.80083291745, -5102735.568496751, 3783135.6733008767]),
+                  np.array([0.646671665530004, 0.5797441308298048, -0.49569395776935277])))
+    dlat, dlon = sd.metre_steps(36.6)
+    h = np.zeros((64, 64))
+    h[32, 32] = 50.0
+    dsm3 = pi.GeodeticDSM.from_array(h, 36.6 + 63 * dlat, -84.3, -dlat, dlon, interpolation="bilinear")
+    cases.append((dsm3, np.array([509211.7903371872, -5101193.68736336, 3781983.445812029]),
+                  np.array([-0.06811254670324139, -0.6011020080812421, -0.7962644390290811])))
+    h4 = np.zeros((32, 32))
+    h4[10:21, 10:17] = 30.0
+    dsm4 = pi.GeodeticDSM.from_array(h4, 36.6 + 31 * dlat, -84.3, -dlat, dlon, interpolation="nearest")
+    cases.append((dsm4, np.array([504225.0373858882, -5101745.957928515, 3781876.882066827]),
+                  np.array([0.9950550313624322, 0.0993251456596419, 1.2649982604679078e-17])))
+    for k, (d, s1, l1) in enumerate(cases):
+        st_ref, r_ref, _ = trace(d, s1, l1, REFERENCE)
+        st_ex, r_ex, _ = trace(d, s1, l1, EXACT)
+        assert st_ref[0] == HIT, (k, st_ref)
+        assert st_ex[0] == HIT and r_ex[0] == r_ref[0], (k, st_ex, r_ex, r_ref)
