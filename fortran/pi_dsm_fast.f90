@@ -713,7 +713,7 @@ contains
     !> pi_dsm_sweep; <= 0: none); the search then starts there (fast_from)
     real(dp), intent(in), optional :: rclear
     type(xpt_t) :: x_in, x_end, xtmp
-    real(dp) :: r_in, r_end, lat, lon, h, dh, hs, hb, rho, dr, den, gu, gv
+    real(dp) :: r_in, r_end, hs, hb, rho, dr, den, gu, gv
     logical :: found, out, used, done
     integer :: code
     ok = .true.
@@ -724,24 +724,12 @@ contains
         if (used) return
       end if
     end if
-    ! ---- 1. the search interval (as exact_ray, with the crossings' end points kept)
-    if (dot_product(s, s) > (dsm%a + max(dsm%hmax, 0.0_dp) + 1.0e-9_dp * dsm%a)**2) then
-      h = huge(1.0_dp)                                   ! outside the sphere |P| = a + H_max: h > H_max
-    else
-      call ray_geo(dsm, s, l, 0.0_dp, lat, lon, h, dh)
-      res%nsteps = res%nsteps + 1
-    end if
-    if (h <= dsm%hmax) then
-      call eval_x(dsm, s, l, 0.0_dp, x_in)
-      res%nsteps = res%nsteps + 1
-      r_in = 0.0_dp
-    else
-      ! x_in exact at or (by ~1e-9 a) before r_in, the search's start
-      call fast_entry(dsm, s, l, 0.0_dp, dsm%hmax, x_in, r_in, found, res%nsteps)
-      if (.not. found) then
-        res%status = ray_dsm_miss
-        return
-      end if
+    ! ---- 1. the search interval (as exact_ray, with the crossings' end points kept):
+    ! x_in exact at or (by ~1e-9 a) before r_in, the search's start
+    call slab_start(dsm, s, l, x_in, r_in, found, res%nsteps)
+    if (.not. found) then
+      res%status = ray_dsm_miss
+      return
     end if
     ! x_end exact at or (by ~1e-9 a) before r_end; the tail [x_end%r, r_end] is
     ! converted and searched only when the search gets there
@@ -792,9 +780,9 @@ contains
     call search_slab(dsm, s, l, x_in, r_in, x_end, r_end, res, ok)
   end subroutine fast_ray
 
-  !> The slab's start for left_search on a certified ray: r_in, the ray's first point with
-  !> h <= H_max (0 when s is there already, as fast_ray finds it), and x exact at or (by
-  !> ~1e-9 a) before it; found = .false. when there is none. neval counts conversions.
+  !> The slab's start (fast_ray's, and left_search's on a certified ray): r_in, the ray's
+  !> first point with h <= H_max (0 when s is there already), and x exact at or (by ~1e-9 a)
+  !> before it; found = .false. when there is none. neval counts conversions.
   pure subroutine slab_start(dsm, s, l, x, r_in, found, neval)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: s(3), l(3)
@@ -806,7 +794,7 @@ contains
     found = .true.
     r_in = 0.0_dp
     if (dot_product(s, s) > (dsm%a + max(dsm%hmax, 0.0_dp) + 1.0e-9_dp * dsm%a)**2) then
-      h = huge(1.0_dp)
+      h = huge(1.0_dp)                                   ! outside the sphere |P| = a + H_max: h > H_max
     else
       call ray_geo(dsm, s, l, 0.0_dp, lat, lon, h, dh)
       neval = neval + 1
