@@ -761,7 +761,7 @@ contains
     integer, intent(out) :: status(n), nsteps(n), stat
     !> rays per fan (0 or 1: none; -1: runs of one focal point)
     integer, intent(in), optional :: fan
-    integer :: k, kk, nt, nf
+    integer :: kk, nt, nf
     real(dp) :: nan
     real(dp), allocatable :: rclear(:)
     integer, allocatable :: order(:)
