@@ -18,7 +18,7 @@
 !> maximum of each 2^k x 2^k block of hgt with no-data as +huge; it gives a
 !> bound of the surface over any index box in O(1) (pi_dsm_exact).
 module pi_dsm
-  use pi_kinds, only: dp
+  use pi_kinds, only: dp, i8
   use pi_vector, only: pi
   use pi_ieee, only: nan_dp
   implicit none
@@ -45,6 +45,10 @@ module pi_dsm
     real(dp) :: lat0 = 0, lon0 = 0, dlat = 1, dlon = 1, lonc = 0
     !> ellipsoid
     real(dp) :: a = 1, f = 0, b = 1, e2 = 0
+    !> largest |dM/dpsi| of the meridian radius M over latitude, 3 e2 a / (2 (1 - e2)^(3/2))
+    !> (pi_dsm_fast's lat_second_bound; a constant of the ellipsoid, here so that the bound
+    !> costs no pow per piece: 2 % of a random ray's instructions, callgrind)
+    real(dp) :: dmdpsi = 0
     !> largest and smallest data height (H_max may be raised by the caller)
     real(dp) :: hmax = 0, hmin = 0
     !> true when the columns cover 360 degrees (longitude boxes then wrap)
@@ -93,6 +97,7 @@ contains
     dsm%f = f
     dsm%b = a * (1.0_dp - f)
     dsm%e2 = f * (2.0_dp - f)
+    dsm%dmdpsi = 1.5_dp * dsm%e2 * a / (1.0_dp - dsm%e2)**1.5_dp
     dsm%interp = interp
     dsm%hmax = hmax
     dsm%hmin = hmin
@@ -408,7 +413,7 @@ contains
       end do
     end do
     ! rounding of the interpolation: never below the computed values by more than a few ulps
-    hb = hb + 4.0_dp * spacing(max(abs(hb), 1.0_dp))
+    hb = hb + 4.0_dp * ulp(max(abs(hb), 1.0_dp))
   end function bilinear_box_max
 
   !> Largest height over rows i0..i1, columns j0..j1 (0-based, inclusive,
@@ -461,6 +466,22 @@ contains
     dy = mm * abs(dsm%dlat)
     dx = nn * cos(lat) * dsm%dlon
   end subroutine dsm_cell_metres
+
+  !> spacing(x) for x >= 1, read off x's exponent bits (the same value; gfortran's spacing calls
+  !> frexp and ldexp, ~70 instructions, on most bilinear box bounds: 3.7 % of a random ray's
+  !> instructions, callgrind; docs/shin-park-notes.md, "Twelfth look"). Infinity and NaN:
+  !> spacing's own answer.
+  elemental function ulp(x) result(s)
+    real(dp), intent(in) :: x
+    real(dp) :: s
+    integer(i8) :: e
+    e = iand(ishft(transfer(x, 0_i8), -52), 2047_i8)   ! biased exponent: x in [2^(e-1023), 2^(e-1022))
+    if (e > 52_i8 .and. e < 2047_i8) then
+      s = transfer(ishft(e - 52_i8, 52), 1.0_dp)         ! 2^(e - 1023 - 52), a normal number
+    else
+      s = spacing(x)
+    end if
+  end function ulp
 
   pure function ieee_nan() result(x)
     real(dp) :: x

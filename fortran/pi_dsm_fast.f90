@@ -695,10 +695,9 @@ contains
   pure function lat_second_bound(dsm, den, rho) result(psi2)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: den, rho
-    real(dp) :: psi2, kap, cm
+    real(dp) :: psi2, kap
     kap = 1.0_dp / den + 1.0_dp / rho                        ! |d(l.north)/dr|
-    cm = 1.5_dp * dsm%e2 * dsm%a / (1.0_dp - dsm%e2)**1.5_dp  ! |dM/dpsi|
-    psi2 = kap / den + (cm / den + 1.0_dp) / den**2
+    psi2 = kap / den + (dsm%dmdpsi / den + 1.0_dp) / den**2   ! (dmdpsi: |dM/dpsi|, dsm_attach)
   end function lat_second_bound
 
   !> The exact mode's answer for one ray (l unit, s above the surface), or
