@@ -143,6 +143,63 @@ def _unit(v):
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
+def resize_data(data: bytes, size: str, ppd: int, why: list) -> bytes:
+    """A .dem file's bytes made the wrong size ("short", "long", "empty", "ppd2": a 1 ppd grid's
+    bytes repeated as if 2 ppd) or left "exact"; a wrong size is appended to ``why``. Shared by
+    both fuzz modes (strategies.py draws ``size`` with hypothesis)."""
+    if size == "short":
+        data = data[:-1]
+    elif size == "long":
+        data = data + b"\0\0\0\0"
+    elif size == "empty":
+        data = b""
+    elif size == "ppd2" and ppd == 1:
+        data = data * 4
+    if size != "exact" and not (size == "ppd2" and ppd != 1):
+        why.append(f"the .dem size ({size})")
+    return data
+
+
+def read_expect(why: list, ppd, rmax, f, re_, dtype, order):
+    """(expect, either) of a read case: what the reader should return (None: an error), from
+    the reasons ``why`` it should fail (none, or only one that may go "either" way), and
+    whether some reason may go either way."""
+    either = any("either" in w for w in why)
+    if not why or (either and len(why) == 1):
+        return {"ppd": ppd, "rmax": rmax, "f": f, "re": re_, "dtype": dtype, "byteorder": order}, either
+    return None, either
+
+
+def ray_geometry(g, n: int, expo: float, kind: str, rmax: float):
+    """(s, l, target) of ``n`` rays of one ``kind`` ("aim", "graze", "limb", "away", "mixed",
+    "axis") whose spacecraft lie at 1 + 10^(expo +- 1/2) ``rmax`` from the centre, drawn from
+    the numpy Generator ``g``: the geometry both fuzz modes share (strategies.geometry draws
+    its n, expo and kind with hypothesis, :func:`geometry` with the bulk mode's R; the same
+    draws give the same rays). l is not yet scaled."""
+    u = _unit(g.standard_normal((n, 3)))
+    if kind == "axis":           # the issue's reproducers: on an axis, straight through the centre
+        u = np.zeros((n, 3))
+        u[np.arange(n), g.integers(0, 3, n)] = g.choice([-1.0, 1.0], n)
+    dist = rmax * (1.0 + 10.0 ** (expo + g.uniform(-0.5, 0.5, n)))
+    s = u * dist[:, None]
+    target = _unit(g.standard_normal((n, 3))) * (rmax * g.uniform(0.0, 1.3, n))[:, None]
+    if kind == "axis":
+        target = np.zeros((n, 3))
+    elif kind == "graze":
+        target = _unit(target) * (rmax * g.uniform(0.95, 1.0, n))[:, None]
+    elif kind == "limb":
+        target = _unit(target) * (rmax * g.uniform(1.0, 1.1, n))[:, None]
+    l = target - s
+    if kind == "away":
+        l = s + g.standard_normal((n, 3)) * dist[:, None] * 0.3
+    if kind == "mixed":
+        pick = g.integers(0, 2, n).astype(bool)
+        l[pick] = -l[pick]
+    bad = np.linalg.norm(l, axis=1) == 0
+    l[bad] = -s[bad]
+    return s, l, target
+
+
 def geometry(r: R, rmax: float, n_max: int = 8):
     """strategies.geometry: aimed, grazing, limb, away, mixed and on-axis rays, |s| up to 1e16.5 rmax."""
     with np.errstate(all="ignore"):
@@ -153,27 +210,7 @@ def geometry(r: R, rmax: float, n_max: int = 8):
         k = r.int(0, 2)
         expo = r.float(-3, 1) if k == 0 else r.float(1, 16) if k == 1 else r.pick([0.0, 6.0, 8.0, 10.0, 12.0, 15.0, 16.5])
         kind = r.pick(["aim", "aim", "graze", "limb", "away", "mixed", "axis"])
-        u = _unit(g.standard_normal((n, 3)))
-        if kind == "axis":
-            u = np.zeros((n, 3))
-            u[np.arange(n), g.integers(0, 3, n)] = g.choice([-1.0, 1.0], n)
-        dist = rmax * (1.0 + 10.0 ** (expo + g.uniform(-0.5, 0.5, n)))
-        s = u * dist[:, None]
-        target = _unit(g.standard_normal((n, 3))) * (rmax * g.uniform(0.0, 1.3, n))[:, None]
-        if kind == "axis":
-            target = np.zeros((n, 3))
-        elif kind == "graze":
-            target = _unit(target) * (rmax * g.uniform(0.95, 1.0, n))[:, None]
-        elif kind == "limb":
-            target = _unit(target) * (rmax * g.uniform(1.0, 1.1, n))[:, None]
-        l = target - s
-        if kind == "away":
-            l = s + g.standard_normal((n, 3)) * dist[:, None] * 0.3
-        if kind == "mixed":
-            pick = g.integers(0, 2, n).astype(bool)
-            l[pick] = -l[pick]
-        bad = np.linalg.norm(l, axis=1) == 0
-        l[bad] = -s[bad]
+        s, l, target = ray_geometry(g, n, expo, kind, rmax)
         l = l * r.pick([1.0, 1.0, 1e-150, 1e-300, 1e150, 1.0 / max(float(np.abs(l).max()), 1e-300)])
         if not np.isfinite(l).all() or (np.linalg.norm(l, axis=1) == 0).any():
             l = target - s
@@ -369,20 +406,8 @@ def header_case(r: R, seed: int) -> dict:
         why.append(f"a stored radius of {bad_value if bad_value is not None else back.max()!r} (rmax {rmax!r}, {dtype})")
     data = stored.tobytes()
     size = r.pick(["short", "long", "empty", "ppd2"]) if r.chance(0.1) else "exact"
-    if size == "short":
-        data = data[:-1]
-    elif size == "long":
-        data = data + b"\0\0\0\0"
-    elif size == "empty":
-        data = b""
-    elif size == "ppd2" and ppd == 1:
-        data = data * 4
-    if size != "exact" and not (size == "ppd2" and ppd != 1):
-        why.append(f"the .dem size ({size})")
-    expect = None
-    either = any("either" in w for w in why)
-    if not why or (either and len(why) == 1):
-        expect = {"ppd": ppd, "rmax": rmax, "f": f, "re": re_, "dtype": dtype, "byteorder": order}
+    data = resize_data(data, size, ppd, why)
+    expect, either = read_expect(why, ppd, rmax, f, re_, dtype, order)
     case = {"op": "read", "header": header, "data": data, "expect": expect, "why": "; ".join(why),
             "open": r.pick(["hdr", "hdr", "dem", "stem"]), "names": ["d.hdr", "d.dem"], "files": True}
     if r.chance(0.04):

@@ -13,6 +13,8 @@ import math
 import numpy as np
 from hypothesis import strategies as st
 
+from .bulk import ray_geometry, read_expect, resize_data
+
 DBL_MAX = float(np.finfo(np.float64).max)
 FLT_MAX = float(np.finfo(np.float32).max)
 
@@ -107,27 +109,7 @@ def _geometry(draw, rmax, n_max):
     rng = np.random.default_rng(seed)
     expo = draw(st.one_of(st.floats(-3, 1), st.floats(1, 16), st.sampled_from([0.0, 6.0, 8.0, 10.0, 12.0, 15.0, 16.5])))
     kind = draw(st.sampled_from(["aim", "aim", "graze", "limb", "away", "mixed", "axis"]))
-    u = _unit(rng.standard_normal((n, 3)))
-    if kind == "axis":           # the reproducers: on an axis, straight through the centre
-        u = np.zeros((n, 3))
-        u[np.arange(n), rng.integers(0, 3, n)] = rng.choice([-1.0, 1.0], n)
-    dist = rmax * (1.0 + 10.0 ** (expo + rng.uniform(-0.5, 0.5, n)))
-    s = u * dist[:, None]
-    target = _unit(rng.standard_normal((n, 3))) * (rmax * rng.uniform(0.0, 1.3, n))[:, None]
-    if kind == "axis":
-        target = np.zeros((n, 3))
-    elif kind == "graze":
-        target = _unit(target) * (rmax * rng.uniform(0.95, 1.0, n))[:, None]
-    elif kind == "limb":
-        target = _unit(target) * (rmax * rng.uniform(1.0, 1.1, n))[:, None]
-    l = target - s
-    if kind == "away":
-        l = s + rng.standard_normal((n, 3)) * dist[:, None] * 0.3
-    if kind == "mixed":
-        pick = rng.integers(0, 2, n).astype(bool)
-        l[pick] = -l[pick]
-    bad = np.linalg.norm(l, axis=1) == 0
-    l[bad] = -s[bad]
+    s, l, target = ray_geometry(rng, n, expo, kind, rmax)
     # scale l: its length must not matter (tiny and huge lengths included)
     l = l * draw(st.sampled_from([1.0, 1.0, 1e-150, 1e-300, 1e150, 1.0 / max(float(np.abs(l).max()), 1e-300)]))
     if not np.isfinite(l).all() or (np.linalg.norm(l, axis=1) == 0).any():
@@ -344,20 +326,8 @@ def header_cases(draw):
                    f"(rmax {rmax!r}, {dtype})")
     data = stored.tobytes()
     size = draw(weighted(st.just("exact"), st.sampled_from(["short", "long", "empty", "ppd2"]), 0.1))
-    if size == "short":
-        data = data[:-1]
-    elif size == "long":
-        data = data + b"\0\0\0\0"
-    elif size == "empty":
-        data = b""
-    elif size == "ppd2" and ppd == 1:
-        data = data * 4
-    if size != "exact" and not (size == "ppd2" and ppd != 1):
-        why.append(f"the .dem size ({size})")
-    expect = None
-    either = any("either" in w for w in why)
-    if not why or (either and len(why) == 1):
-        expect = {"ppd": ppd, "rmax": rmax, "f": f, "re": re_, "dtype": dtype, "byteorder": order}
+    data = resize_data(data, size, ppd, why)
+    expect, either = read_expect(why, ppd, rmax, f, re_, dtype, order)
     case = {"op": "read", "header": header, "data": data, "expect": expect, "why": "; ".join(why),
             "open": draw(st.sampled_from(["hdr", "hdr", "dem", "stem"])), "names": ["d.hdr", "d.dem"],
             "files": True}
