@@ -143,6 +143,33 @@ def _unit(v):
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
+def spoil_ray_line(lines: list, rows: list, bad, integer):
+    """Spoil one data line of a ray file in the way ``bad`` names ("nan", "inf", "word",
+    "hex": one token; "cols5", "cols7": a column short or over; "comma": commas as separators;
+    "inside": a position inside the body; None: none). ``lines`` holds (text, data row index
+    or None) and is changed in place; ``integer(lo, hi)`` draws an int in [lo, hi] (the bulk
+    mode's R.int, or hypothesis' draw in strategies.py). Returns (why, the 1-based line
+    number the error must name, or None)."""
+    if not bad:
+        return "", None
+    idx = [i for i, (_, k) in enumerate(lines) if k is not None]
+    at = idx[integer(0, len(idx) - 1)]
+    text, k = lines[at]
+    toks = rows[k][:]
+    if bad in ("nan", "inf", "word", "hex"):
+        toks[integer(0, 5)] = {"nan": "nan", "inf": "-inf", "word": "abc", "hex": "0x10"}[bad]
+    elif bad == "cols5":
+        toks = toks[:5]
+    elif bad == "cols7":
+        toks = toks + ["1.0"]
+    elif bad == "comma":
+        toks = [",".join(toks)]
+    elif bad == "inside":
+        toks[:3] = ["0.0", "0.0", "10.0"]
+    lines[at] = (" ".join(toks), k)
+    return f"{bad} on line {at + 1}", (at + 1 if bad in ("nan", "inf", "inside") else None)
+
+
 def resize_data(data: bytes, size: str, ppd: int, why: list) -> bytes:
     """A .dem file's bytes made the wrong size ("short", "long", "empty", "ppd2": a 1 ppd grid's
     bytes repeated as if 2 ppd) or left "exact"; a wrong size is appended to ``why``. Shared by
@@ -443,26 +470,7 @@ def cli_case(r: R, seed: int) -> dict:
         tail = r.pick(["", "", "  # ray comment"])
         lines.append((sep.join(row) + tail, k))
     bad = r.pick(["nan", "inf", "word", "cols5", "cols7", "comma", "inside", "hex"]) if n and r.chance(0.25) else None
-    bad_line, why = None, ""
-    if bad:
-        idx = [i for i, (_, k) in enumerate(lines) if k is not None]
-        at = idx[r.int(0, len(idx) - 1)]
-        text, k = lines[at]
-        toks = rows[k][:]
-        if bad in ("nan", "inf", "word", "hex"):
-            toks[r.int(0, 5)] = {"nan": "nan", "inf": "-inf", "word": "abc", "hex": "0x10"}[bad]
-        elif bad == "cols5":
-            toks = toks[:5]
-        elif bad == "cols7":
-            toks = toks + ["1.0"]
-        elif bad == "comma":
-            toks = [",".join(toks)]
-        elif bad == "inside":
-            toks[:3] = ["0.0", "0.0", "10.0"]
-        lines[at] = (" ".join(toks), k)
-        why = f"{bad} on line {at + 1}"
-        if bad in ("nan", "inf", "inside"):
-            bad_line = at + 1
+    why, bad_line = spoil_ray_line(lines, rows, bad, r.int)
     eol = r.pick(["\n", "\r\n", "\r"])
     content = eol.join(t for t, _ in lines) + (eol if r.chance(0.5) else "")
     if r.chance(0.1) and not bad:

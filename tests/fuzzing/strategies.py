@@ -13,7 +13,7 @@ import math
 import numpy as np
 from hypothesis import strategies as st
 
-from .bulk import ray_geometry, read_expect, resize_data
+from .bulk import ray_geometry, read_expect, resize_data, spoil_ray_line
 
 DBL_MAX = float(np.finfo(np.float64).max)
 FLT_MAX = float(np.finfo(np.float32).max)
@@ -367,27 +367,7 @@ def cli_cases(draw):
         lines.append((sep.join(row) + tail, k))
     bad = draw(weighted(st.none(), st.sampled_from(["nan", "inf", "word", "cols5", "cols7", "comma", "inside",
                                                     "hex"]), 0.25)) if n else None
-    bad_line = None
-    why = ""
-    if bad:
-        idx = [i for i, (_, k) in enumerate(lines) if k is not None]
-        at = idx[draw(st.integers(0, len(idx) - 1))]
-        text, k = lines[at]
-        toks = rows[k][:]
-        if bad in ("nan", "inf", "word", "hex"):
-            toks[draw(st.integers(0, 5))] = {"nan": "nan", "inf": "-inf", "word": "abc", "hex": "0x10"}[bad]
-        elif bad == "cols5":
-            toks = toks[:5]
-        elif bad == "cols7":
-            toks = toks + ["1.0"]
-        elif bad == "comma":
-            toks = [",".join(toks)]
-        elif bad == "inside":
-            toks[:3] = ["0.0", "0.0", "10.0"]
-        lines[at] = (" ".join(toks), k)
-        why = f"{bad} on line {at + 1}"
-        if bad in ("nan", "inf", "inside"):
-            bad_line = at + 1
+    why, bad_line = spoil_ray_line(lines, rows, bad, lambda lo, hi: draw(st.integers(lo, hi)))
     eol = draw(st.sampled_from(["\n", "\r\n", "\r"]))
     content = eol.join(t for t, _ in lines) + (eol if draw(st.booleans()) else "")
     if draw(chance(0.1)) and not bad:
