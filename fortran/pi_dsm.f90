@@ -27,6 +27,7 @@ module pi_dsm
   public :: dsm_t, dsm_attach, dsm_height, dsm_grid_uv, dsm_cells, dsm_box_bound, dsm_box_bound_wrapped, &
             dsm_cell_metres, range_max
   public :: interp_bilinear, interp_nearest, pt_ok, pt_outside, pt_nodata
+  public :: ulp
 
   !> interpolation codes
   integer, parameter :: interp_bilinear = 0, interp_nearest = 1

@@ -400,6 +400,18 @@ subroutine core_ray_order(ncols, nrows, hgt, lat0, lon0, dlat, dlon, a, f, inter
   sorted = merge(1, 0, srt)
 end subroutine core_ray_order
 
+!> pi_dsm's ulp (spacing read off the exponent bits, in the exact mode's box bounds) for the
+!> tests, which compare it with NumPy's spacing.
+subroutine core_ulp(n, x, s)
+  use pi_kinds, only: dp
+  use pi_dsm, only: ulp
+  implicit none
+  integer, intent(in) :: n
+  real(dp), intent(in) :: x(n)
+  real(dp), intent(out) :: s(n)
+  s = ulp(x)
+end subroutine core_ulp
+
 !> The DSM per-ray codes as compiled (no_data, left_dsm, dsm_miss,
 !> not_converged, oscillation, step_limit), for Python's table check.
 subroutine core_dsm_codes(codes)

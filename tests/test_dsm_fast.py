@@ -414,3 +414,23 @@ def test_leaving_search_keeps_exact_rays_touches():
         st_ex, r_ex, _ = trace(d, s1, l1, EXACT)
         assert st_ref[0] == HIT, (k, st_ref)
         assert st_ex[0] == HIT and r_ex[0] == r_ref[0], (k, st_ex, r_ex, r_ref)
+
+
+def test_ulp_is_spacing():
+    """pi_dsm's ulp, which widens every bilinear box bound by 4 ulps ("Twelfth look"), is
+    spacing to the bit: NumPy's spacing on heights from 1e-250 to 2^1023 (its fast
+    path), powers of two and their neighbours, negative values; NaN and infinity go to
+    spacing itself (NaN)."""
+    rng = np.random.default_rng(12)
+    x = np.concatenate([
+        10.0 ** rng.uniform(-250, 308, 20000),
+        [1.0, 2.0, 0.5, 300.0, 6378137.0, 8848.86, np.finfo(float).max, 2.0 ** -900, 2.0 ** 1000],
+        np.nextafter(2.0 ** np.arange(-60, 60), 0.0), np.nextafter(2.0 ** np.arange(-60, 60), np.inf),
+    ])
+    x = np.concatenate([x, -x[:100]])
+    s = _core.core_ulp(x)
+    top = np.abs(x) >= 2.0 ** 1023        # NumPy's spacing there is the step to infinity
+    np.testing.assert_array_equal(s[~top], np.spacing(np.abs(x[~top])))
+    assert (s[top] == 2.0 ** 971).all() and top.sum() >= 1   # Fortran's spacing: 2^(1023 - 52)
+    assert s[x == 300.0][0] == 2.0 ** -44                 # 300 in [2^8, 2^9): 2^(8 - 52)
+    assert np.isnan(_core.core_ulp(np.array([np.nan, np.inf]))).all()
