@@ -56,21 +56,29 @@ class Worker:
         self.calls = 0
         self.restarts = 0
         self._err = tempfile.TemporaryFile()
+        self._scratch = None
 
     def start(self) -> None:
         r_parent, w_child = os.pipe()
         r_child, w_parent = os.pipe()
         self._err.seek(0)
         self._err.truncate()
+        # the worker's temporary files go to a directory of the parent's, removed
+        # when the process ends: a worker killed in a case (a crash, a hang, the
+        # self-tests' segfault) cannot clean up after itself
+        self._scratch = tempfile.mkdtemp(prefix="pifuzz-worker-")
         self.proc = subprocess.Popen([sys.executable, str(WORKER), str(r_child), str(w_child)],
                                      pass_fds=(r_child, w_child), stdin=subprocess.DEVNULL,
-                                     stdout=self._err, stderr=self._err, env=self.env,
+                                     stdout=self._err, stderr=self._err,
+                                     env=dict(self.env, TMPDIR=self._scratch),
                                      start_new_session=True)
         os.close(r_child)
         os.close(w_child)
         self._r, self._w = r_parent, w_parent
         hello = self._receive(max(self.timeout, 60.0))
-        if hello is None or hello[0] != "ready":
+        if hello is None or hello == "timeout" or hello[0] != "ready":
+            self._kill()
+            self._ended()
             raise RuntimeError(f"fuzz worker did not start: {self._stderr_tail()}")
 
     def close(self) -> None:
@@ -85,7 +93,7 @@ class Worker:
             self.proc.wait(timeout=5)
         except subprocess.TimeoutExpired:
             self._kill()
-        self.proc = None
+        self._ended()
 
     def _kill(self) -> None:
         try:
@@ -93,6 +101,15 @@ class Worker:
         except ProcessLookupError:
             pass
         self.proc.wait()
+
+    def _ended(self) -> None:
+        """The worker process has ended: forget it and remove its scratch directory."""
+        import shutil
+
+        self.proc = None
+        if self._scratch is not None:
+            shutil.rmtree(self._scratch, ignore_errors=True)
+            self._scratch = None
 
     def _stderr_tail(self, n: int = 1500) -> str:
         self._err.flush()
@@ -142,14 +159,14 @@ class Worker:
         dt = time.monotonic() - t0
         if reply == "timeout":
             self._kill()
-            self.proc = None
+            self._ended()
             self.restarts += 1
             return Outcome("hang", f"no answer within {timeout or self.timeout:.0f} s", dt)
         if reply is None:
             rc = self.proc.wait()
             self._err.seek(mark)
             err = self._err.read().decode("utf-8", "replace")
-            self.proc = None
+            self._ended()
             self.restarts += 1
             how = f"killed by signal {-rc} ({signal.Signals(-rc).name})" if rc < 0 else f"exit status {rc}"
             return Outcome("crash", f"worker {how}; stderr:\n{err[-2000:]}", dt)
