@@ -32,6 +32,7 @@ module pi_dsm_exact
                     interp_nearest, pt_ok, &
                     pt_outside, pt_nodata, range_max
   use pi_follow, only: dsm_ray_t, follow_ray, iterate_ray, ray_geo, level_crossing, level_crossing_back, &
+                       bowring_error, bowring_tol, &
                        set_hit, set_event, settle_start, refine_tol, newton_tol
   use pi_geodetic, only: ecr_to_geodetic
   use pi_dsm_fast, only: fast_ray, lat_second_bound
@@ -765,7 +766,7 @@ contains
     real(dp) :: nan
     real(dp), allocatable :: rclear(:)
     integer, allocatable :: order(:)
-    logical :: fans, sorted
+    logical :: fans, sorted, exact_steps
     nan = nan_dp
     p = nan; q = nan; scal = nan; status = ray_bad_direction; nsteps = 0
     stat = stat_ok
@@ -787,6 +788,9 @@ contains
     ! its own s, l and rclear alone and goes to its own column: the same results in any order)
     allocate(order(n))
     call ray_order(dsm, n, s, l, order, sorted)
+    ! the following steps by eq. 2 unless it is off on this body at these heights [note 10]
+    exact_steps = .false.
+    if (method == dsm_method_following) exact_steps = bowring_error(dsm) > bowring_tol * dsm%a
     !$omp parallel do schedule(dynamic, 64) num_threads(nt) default(shared) private(kk)
     do kk = 1, n
       call trace_one(order(kk))
@@ -823,7 +827,7 @@ contains
         if (code == pt_ok .and. h <= hs) then
           res%status = ray_inside
         else if (method == dsm_method_following) then
-          call follow_ray(dsm, s(:, k), lu, res)
+          call follow_ray(dsm, s(:, k), lu, res, exact_steps)
         else if (method == dsm_method_exact) then
           if (fans) then                                  ! the fast path (from the sweep's clear distance)
             call fast_ray(dsm, s(:, k), lu, res, ok, rclear(k))

@@ -14,13 +14,13 @@ module pi_follow
   use pi_kinds, only: dp
   use pi_status
   use pi_dsm, only: dsm_t, dsm_height, dsm_cell_metres, pt_ok, pt_outside, pt_nodata
-  use pi_geodetic, only: ecr_to_geodetic, ecr_to_geodetic_bowring
+  use pi_geodetic, only: ecr_to_geodetic, ecr_to_geodetic_bowring, geodetic_to_ecr
   implicit none
   private
 
   public :: dsm_ray_t, follow_ray, iterate_ray, ray_geo, level_crossing, level_crossing_back, &
             ellipsoid_entry, set_hit, set_event, settle_start, refine_tol, follow_maxsteps, iter_maxit, &
-            iter_tol, nadir_tol, newton_tol
+            iter_tol, nadir_tol, newton_tol, bowring_error, bowring_tol
 
   !> Refinement and exact-mode tolerance on r (units of a; 1e-6 m for Earth in metres).
   real(dp), parameter :: refine_tol = 1.0e-6_dp
@@ -31,6 +31,10 @@ module pi_follow
   real(dp), parameter :: iter_tol = 1.0e-6_dp
   !> cos(theta_i) at or below this is the paper's nadir case (theta_i = 90 deg) [note 6].
   real(dp), parameter :: nadir_tol = 1.0e-12_dp
+  !> Largest error of eq. 2 (Bowring's one step), relative to a, for which the following
+  !> steps with it; above it (strongly flattened bodies) the steps use the exact
+  !> conversion: see bowring_error [note 10].
+  real(dp), parameter :: bowring_tol = 1.0e-10_dp
 
   !> Everything computed for one ray (lengths in units of a, angles radians).
   type :: dsm_ray_t
@@ -233,11 +237,14 @@ contains
   end subroutine set_event
 
   !> g(r) = h(r) - H(r) for the refinement; a point that is not over data counts
-  !> as above the surface (g > 0) [note 9].
-  pure function gap(dsm, s, l, r) result(g)
+  !> as above the surface (g > 0) [note 9]. low_nodata: the point is over
+  !> no-data at h <= H_max.
+  pure subroutine gap(dsm, s, l, r, g, low_nodata)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: s(3), l(3), r
-    real(dp) :: g, lat, lon, h, dh, hs
+    real(dp), intent(out) :: g
+    logical, intent(out) :: low_nodata
+    real(dp) :: lat, lon, h, dh, hs
     integer :: code
     call ray_geo(dsm, s, l, r, lat, lon, h, dh)
     call dsm_height(dsm, lat, lon, hs, code)
@@ -246,19 +253,54 @@ contains
     else
       g = max(h - dsm%hmax, 0.0_dp) + 1.0e-3_dp
     end if
-  end function gap
+    low_nodata = code == pt_nodata .and. h <= dsm%hmax
+  end subroutine gap
+
+  !> Error of eq. 2 (Bowring's one step) over the DSM's heights: the largest
+  !> |h error| + a |latitude error| of ecr_to_geodetic_bowring against the exact
+  !> conversion at latitudes 0, 5, ..., 90 degrees (the error is symmetric about
+  !> the equator and does not depend on longitude) and heights H_min, H_max and
+  !> their mean (units of a).
+  !>
+  !> Particulars: on the Earth it is 2e-6 m at 10 km and on Mars 2e-5 m, far
+  !> below bowring_tol * a; on a 13 km body with f = 0.3 it is ~100 m at 4 km
+  !> (a fuzz case: the steps put the ray over a cell five rows from where the
+  !> exact conversion puts it, and the following reported a hit outside the
+  !> grid) [note 10]. 57 conversions each way: call it once per batch.
+  pure function bowring_error(dsm) result(err)
+    type(dsm_t), intent(in) :: dsm
+    real(dp) :: err, hl(3), lat, x, y, z, la, lo, h, lb, lob, hb
+    integer :: i, j
+    hl = [dsm%hmin, 0.5_dp * (dsm%hmin + dsm%hmax), dsm%hmax]
+    err = 0.0_dp
+    do j = 1, 3
+      do i = 0, 18
+        lat = real(i, dp) * (5.0_dp * acos(-1.0_dp) / 180.0_dp)
+        call geodetic_to_ecr(lat, 0.0_dp, hl(j), dsm%a, dsm%f, x, y, z)
+        call ecr_to_geodetic(x, y, z, dsm%a, dsm%f, la, lo, h)
+        call ecr_to_geodetic_bowring(x, y, z, dsm%a, dsm%f, lb, lob, hb)
+        err = max(err, abs(hb - h) + dsm%a * abs(lb - la))
+      end do
+    end do
+    if (.not. (err <= huge(1.0_dp))) err = huge(1.0_dp)       ! NaN: never trust eq. 2
+  end function bowring_error
 
   !> Shin & Park ray following (section 3, steps 1-5) for one ray; l unit,
   !> s above the surface (checked by the caller). See the module header.
-  pure subroutine follow_ray(dsm, s, l, res)
+  !> exact_steps (default .false.): convert the steps exactly instead of by
+  !> eq. 2, for bodies where eq. 2 is off (bowring_error > bowring_tol a) [note 10].
+  pure subroutine follow_ray(dsm, s, l, res, exact_steps)
     type(dsm_t), intent(in) :: dsm
     real(dp), intent(in) :: s(3), l(3)
     type(dsm_ray_t), intent(inout) :: res
+    logical, intent(in), optional :: exact_steps
     real(dp) :: re, pe(3), late, lone, he, nx, ny, nz, sin_ti, cos_ti, r, dr, dy, dx, dd
     real(dp) :: p(3), lat, lon, h, hs, hprev, rprev, ra, rb, ga, gb, rc, gc, wold, rout
-    logical :: hit_e, found
+    logical :: hit_e, found, exact, nda, ndc
     integer :: code, k, it, side
     res%nsteps = 0
+    exact = .false.
+    if (present(exact_steps)) exact = exact_steps
     ! ---- step 1: r_min (eq. 3), theta_i, nadir case, Delta r (eq. 4)
     call ellipsoid_entry(dsm%a, dsm%b, s, l, re, hit_e)
     if (hit_e .and. re > 0.0_dp) then
@@ -271,11 +313,12 @@ contains
         res%nsteps = 1
         if (code == pt_outside) then
           call set_event(dsm, s, l, max(re - dsm%hmax, 0.0_dp), ray_left_dsm, res)
+          return
         else if (code == pt_nodata) then
           call set_event(dsm, s, l, max(re - dsm%hmax, 0.0_dp), ray_no_data, res)
-        else
-          call set_hit(dsm, s, l, re - hs, ray_hit, res)      ! the projected point at height H
+          return
         end if
+        call set_hit(dsm, s, l, re - hs, ray_hit, res)        ! the projected point at height H
         return
       end if
       r = re - dsm%hmax / sin_ti                             ! eq. 3, r_min back from the ellipsoid [note 4]
@@ -306,11 +349,22 @@ contains
     rout = -1.0_dp
     do k = 1, follow_maxsteps
       p = s + r * l                                          ! step 2: eq. 1
-      call ecr_to_geodetic_bowring(p(1), p(2), p(3), dsm%a, dsm%f, lat, lon, h)   ! eq. 2 [note 10]
+      if (exact) then
+        call ecr_to_geodetic(p(1), p(2), p(3), dsm%a, dsm%f, lat, lon, h)        ! eq. 2 is off here [note 10]
+      else
+        call ecr_to_geodetic_bowring(p(1), p(2), p(3), dsm%a, dsm%f, lat, lon, h) ! eq. 2 [note 10]
+      end if
       call dsm_height(dsm, lat, lon, hs, code)               ! step 3
       res%nsteps = res%nsteps + 1
-      if (code == pt_ok) then
-        if (h <= hs) exit                                    ! step 4: the ray is at or below the surface [note 11]
+      if (code == pt_ok .and. h <= hs) then                  ! step 4: the ray is at or below the surface [note 11]
+        if (exact) exit
+        ! confirmed by the exact conversion that the refinement and the result use: eq. 2's
+        ! h = p / cos(phi) - N amplifies rounding near a pole (1.7e-3 m at 0.77 m from Mars's
+        ! pole, a fuzz case: the hit came back 1.2e-4 m above the surface); unconfirmed, the
+        ! point is above the surface and the steps go on [note 10]
+        call gap(dsm, s, l, r, gb, ndc)
+        res%nsteps = res%nsteps + 1
+        if (gb <= 0.0_dp) exit
       else if (code == pt_nodata .and. h <= dsm%hmax) then
         call set_event(dsm, s, l, r, ray_no_data, res)       ! [note 12]
         return
@@ -342,9 +396,9 @@ contains
       call set_hit(dsm, s, l, rb, ray_hit, res)
       return
     end if
-    ga = gap(dsm, s, l, ra)
-    gb = gap(dsm, s, l, rb)
-    res%nsteps = res%nsteps + 2
+    call gap(dsm, s, l, ra, ga, nda)
+    if (exact) call gap(dsm, s, l, rb, gb, ndc)             ! (else known from the step's confirmation)
+    res%nsteps = res%nsteps + merge(2, 1, exact)
     side = 0
     wold = 2.0_dp * (rb - ra)
     do it = 1, 200
@@ -360,11 +414,12 @@ contains
         rc = rb - gb * (rb - ra) / (gb - ga)
       end if
       if (.not. (rc > ra .and. rc < rb)) rc = 0.5_dp * (ra + rb)
-      gc = gap(dsm, s, l, rc)
+      call gap(dsm, s, l, rc, gc, ndc)
       res%nsteps = res%nsteps + 1
       if (gc > 0.0_dp) then
         ra = rc
         ga = gc
+        nda = ndc
         if (side == -1) gb = 0.5_dp * gb
         side = -1
       else
@@ -374,7 +429,12 @@ contains
         side = 1
       end if
     end do
-    if (rb - ra <= refine_tol) then
+    if (nda) then
+      ! the crossing is the side of a cell that the ray reaches low over no-data,
+      ! which the steps passed over: not a hit the DSM can vouch for (the exact
+      ! mode's NO_DATA there; a fuzz case was a hit 12.6 m below a roof) [note 12]
+      call set_event(dsm, s, l, ra, ray_no_data, res)
+    else if (rb - ra <= refine_tol) then
       call set_hit(dsm, s, l, rb, ray_hit, res)
     else
       call set_hit(dsm, s, l, rb, ray_hit_unconverged, res)

@@ -214,43 +214,90 @@ contains
   elemental function eberly_root(y0, y1, a, b, t0, lo0, hi0, early) result(t)
     real(dp), intent(in) :: y0, y1, a, b, t0, lo0, hi0
     logical, intent(in) :: early
-    real(dp) :: t, lo, hi, a2, b2, q0, q1, fv, dfv, tn, i0, i1
+    real(dp) :: t
+    t = eberly_solve(y0, y1, a, b, a * a, b * b, t0, lo0, hi0, a * a, early, .false.)
+  end function eberly_root
+
+  !> The root u = t + b^2 of Eberly's F written in u, F(u) = (a y0/(u + c^2))^2
+  !> + (b y1/u)^2 - 1 with c^2 = a^2 - b^2 = a^2 e^2 (convex, decreasing on u > 0),
+  !> for roots near t = -b^2, where t + b^2 cancels: Newton from u0 (or, inside the
+  !> evolute, the root's limit for y1 -> 0) in the bracket [b y1, sqrt(a^2 y0^2 + b^2 y1^2)],
+  !> bisected geometrically while it spans more than a factor 4 (the root may lie
+  !> hundreds of decades below its top); stops at a step <= 1e-15 u or a closed bracket.
+  elemental function eberly_root_u(y0, y1, a, b, u0) result(u)
+    real(dp), intent(in) :: y0, y1, a, b, u0
+    real(dp) :: u, lo, hi, c2, q
+    c2 = a * a * ((1.0_dp - b / a) * (1.0_dp + b / a))   ! a^2 - b^2 without cancelling a^2 against b^2
+    lo = max(b * y1, tiny(1.0_dp))
+    hi = sqrt((a * y0)**2 + (b * y1)**2)
+    ! start: u = b^2 y1 / x1 with the foot point (x0, x1) of the equatorial plane's case
+    u = u0
+    q = a * y0 / c2
+    if (q < 1.0_dp) then
+      q = b * y1 / sqrt((1.0_dp - q) * (1.0_dp + q))
+      if (q > lo .and. q < hi) u = q
+    end if
+    u = eberly_solve(y0, y1, a, b, c2, 0.0_dp, u, lo, hi, 0.0_dp, .false., .true.)
+  end function eberly_root_u
+
+  !> The root x of G(x) = (a y0/(x + sa))^2 + (b y1/(x + sb))^2 - 1 (convex and
+  !> decreasing right of -min(sa, sb)) by Newton from x0 inside the bracket
+  !> (lo0, hi0), which bisection keeps shrinking (geometric: halving the bracket's
+  !> logarithm while hi > 4 lo > 0): at most geo_maxit steps. Stops at a step
+  !> <= 1e-15 (|x| + scale) or a closed bracket; with early, also after a Newton
+  !> step d <= 1e-8 (|x| + scale) at x > -sb/2. Eberly's F(t) is sa = a^2,
+  !> sb = b^2, scale = a^2 (eberly_root); F(u) is sa = a^2 - b^2, sb = 0, scale =
+  !> 0 (eberly_root_u).
+  elemental function eberly_solve(y0, y1, a, b, sa, sb, x0, lo0, hi0, scale, early, geometric) result(x)
+    real(dp), intent(in) :: y0, y1, a, b, sa, sb, x0, lo0, hi0, scale
+    logical, intent(in) :: early, geometric
+    real(dp) :: x, lo, hi, q0, q1, fv, dfv, xn, i0, i1
     integer :: it
     logical :: newton
-    a2 = a * a
-    b2 = b * b
     lo = lo0
     hi = hi0
-    t = t0
-    if (.not. (t > lo .and. t < hi)) t = 0.5_dp * (lo + hi)
+    x = x0
+    if (.not. (x > lo .and. x < hi)) then
+      if (geometric .and. lo > 0.0_dp .and. hi > 4.0_dp * lo) then
+        x = sqrt(lo) * sqrt(hi)
+      else
+        x = 0.5_dp * (lo + hi)
+      end if
+    end if
     do it = 1, geo_maxit
-      ! F and F' with two divisions (1/(t + a2), 1/(t + b2)) instead of four
-      i0 = 1.0_dp / (t + a2)
-      i1 = 1.0_dp / (t + b2)
+      ! G and G' with two divisions (1/(x + sa), 1/(x + sb)) instead of four
+      i0 = 1.0_dp / (x + sa)
+      i1 = 1.0_dp / (x + sb)
       q0 = a * y0 * i0
       q1 = b * y1 * i1
       q0 = q0 * q0
       q1 = q1 * q1
       fv = q0 + q1 - 1.0_dp
       if (fv > 0.0_dp) then
-        lo = t
+        lo = x
       else if (fv < 0.0_dp) then
-        hi = t
+        hi = x
       else
         exit
       end if
       dfv = -2.0_dp * (q0 * i0 + q1 * i1)
-      tn = t - fv / dfv
-      newton = tn > lo .and. tn < hi
-      if (.not. newton) tn = 0.5_dp * (lo + hi)
-      if (abs(tn - t) <= 1.0e-15_dp * (abs(t) + a2) .or. .not. (hi - lo > 0.0_dp) .or. &
-          (early .and. newton .and. t > -0.5_dp * b2 .and. abs(tn - t) <= 1.0e-8_dp * (abs(t) + a2))) then
-        t = tn
+      xn = x - fv / dfv
+      newton = xn > lo .and. xn < hi
+      if (.not. newton) then
+        if (geometric .and. lo > 0.0_dp .and. hi > 4.0_dp * lo) then
+          xn = sqrt(lo) * sqrt(hi)
+        else
+          xn = 0.5_dp * (lo + hi)
+        end if
+      end if
+      if (abs(xn - x) <= 1.0e-15_dp * (abs(x) + scale) .or. .not. (hi - lo > 0.0_dp) .or. &
+          (early .and. newton .and. x > -0.5_dp * sb .and. abs(xn - x) <= 1.0e-8_dp * (abs(x) + scale))) then
+        x = xn
         exit
       end if
-      t = tn
+      x = xn
     end do
-  end function eberly_root
+  end function eberly_solve
 
   !> The exact conversion behind ecr_to_geodetic (bowring = .true.: Newton
   !> started from Bowring's one-step estimate) and ecr_to_geodetic_nb
@@ -262,23 +309,28 @@ contains
     real(dp), intent(out) :: lat, lon, h
     real(dp), intent(out), optional :: nx, ny, nz
     real(dp) :: b, a2, b2, e2, y0, y1, x0, x1, t, lo, hi, g0, g1, gn
-    real(dp) :: latb, hb, sl, nn, rho
+    real(dp) :: latb, hb, sl, nn, rho, u
+    logical :: plane
     b = a * (1.0_dp - f)
     a2 = a * a
     b2 = b * b
     e2 = f * (2.0_dp - f)
     y0 = sqrt(x * x + y * y)
     y1 = abs(z)
+    ! within 1e-250 a of the equatorial plane the point is on it for double precision
+    ! (its foot point's z differs from the plane's by less than one in 1e250 of a; the
+    ! root for u = t + b^2 would underflow): the plane's closed forms, z's sign kept
+    plane = y1 <= 1.0e-250_dp * a
     if (y0 > 0.0_dp) then
       lon = atan2(y, x)
     else
       lon = 0.0_dp
     end if
-    if (y1 == 0.0_dp .and. y0 >= (a2 - b2) / a) then      ! equatorial plane, outside the evolute
+    if (plane .and. y0 >= (a2 - b2) / a) then      ! equatorial plane, outside the evolute
       x0 = a
       x1 = 0.0_dp
       t = a * (y0 - a)                                     ! so that h = t * |g| below
-    else if (y1 == 0.0_dp) then                           ! equatorial plane inside the evolute
+    else if (plane) then                           ! equatorial plane inside the evolute
       x0 = a2 * y0 / (a2 - b2)
       x1 = b * sqrt(max(0.0_dp, 1.0_dp - (x0 / a)**2))
       t = -b2
@@ -286,6 +338,14 @@ contains
       x0 = 0.0_dp
       x1 = b
       t = b * (y1 - b)
+    else if (f == 0.0_dp) then
+      ! a sphere: the foot point is along the radius. In closed form, because Eberly's
+      ! t + a^2 = a |p| cancels for points near the centre (1e-16 a/|p| relative: 2e-6 m
+      ! of round trip at |p| = 1e-4 a on the Moon)
+      rho = hypot(y0, y1)
+      x0 = a * (y0 / rho)
+      x1 = a * (y1 / rho)
+      t = a * (rho - a)
     else
       ! Eberly: F(t) = (a y0/(t+a2))^2 + (b y1/(t+b2))^2 - 1, decreasing on (-b2, inf)
       lo = -b2 + b * y1
@@ -304,15 +364,29 @@ contains
       t = eberly_root(y0, y1, a, b, t, lo, hi, .false.)
       x0 = a2 * y0 / (t + a2)
       x1 = b2 * y1 / (t + b2)
+      if (t + b2 < 0.5_dp * b2 .and. a * y0 < 2.0_dp * (a2 - b2)) then
+        ! inside the evolute near the equatorial plane the root lies close to -b^2 and
+        ! t + b^2 keeps only log10(b^2/(t + b^2)) fewer digits: a point 7.8 km from the
+        ! Earth's centre 1e-20 m off the plane came back 5,000 km from itself (a fuzz case).
+        ! Solved again for u = t + b^2, which carries no such cancellation. (Only within
+        ! twice the evolute's reach of the axis, y0 < 2 (a^2 - b^2)/a: elsewhere, a sphere's
+        ! interior included, the root is not pinned to -b^2 and t is well conditioned.)
+        u = eberly_root_u(y0, y1, a, b, t + b2)
+        t = u - b2
+        x0 = a2 * y0 / (u + a2 * e2)
+        x1 = b2 * y1 / u
+      end if
     end if
     ! gradient direction at the foot point (x0/a2, x1/b2); h = t * |g|
     g0 = x0 / a2
     g1 = x1 / b2
     gn = sqrt(g0 * g0 + g1 * g1)
-    if (y0 == 0.0_dp .or. (y1 == 0.0_dp .and. y0 >= (a2 - b2) / a)) then
+    if (y0 == 0.0_dp .or. (plane .and. y0 >= (a2 - b2) / a)) then
       h = merge(y1 - b, y0 - a, y0 == 0.0_dp)
-    else if (y1 == 0.0_dp) then
+    else if (plane) then
       h = -sqrt((y0 - x0)**2 + x1 * x1)
+    else if (f == 0.0_dp) then
+      h = hypot(y0, y1) - a
     else
       h = t * gn
     end if

@@ -142,3 +142,121 @@ def test_global_bilinear_grid_has_a_surface_across_its_seam():
         assert abs(res.distance[0] - ref) < 1e-3, (lon_t, res.distance[0] - ref)
         fol = pi.intersect(dsm, s, look, method="following")
         assert fol.status[0] == DSMStatus.HIT and fol.distance[0] >= res.distance[0] - 1e-6
+
+
+# ---------------------------------------------------------------- 2026-12-03: the geodetic fuzz family and a review
+def test_spacing_below_the_floor_is_refused():
+    """A sub-normal spacing (0 in radians) crashed the core; 1e-12 degrees at 22 degrees put
+    0.1 % errors into the heights at pixel centres. Spacings below 1e-8 degrees are refused,
+    for the DSM and the ortho-image alike."""
+    for kw in (dict(dlon=5e-324), dict(dlat=-1e-12), dict(dlon=1e-310)):
+        args = dict(heights=np.zeros((3, 3)), lat_first=22.0, lon_first=0.0, dlat=-1e-3, dlon=1e-3) | kw
+        name = next(iter(kw))
+        with pytest.raises(pi.DSMError, match=rf"{name} = .* below 1e-08 degrees"):
+            GeodeticDSM.from_array(**args)
+    with pytest.raises(ValueError, match="dlat = .* below 1e-08"):
+        pi.OrthoImage.from_array(np.zeros((3, 3)), 0.0, 0.0, -5e-324, 1e-3)
+    GeodeticDSM.from_array(np.zeros((3, 3)), 22.0, 0.0, -1e-8, 1e-8)          # the floor itself is accepted
+
+
+def test_semi_major_axis_range_of_a_dsm():
+    """The search's tolerances are lengths (1e-6 along a ray): in light years a hit came 670 m
+    late, in nanometres the search ran out of steps. A GeodeticDSM takes a in [1, 1e10]."""
+    for a in (6378137.0 / 9.4607e15, 6378137.0e9):
+        with pytest.raises(pi.DSMError, match=r"a \(semi-major axis\) = .* a in \[1, 1e\+10\]"):
+            GeodeticDSM.from_array(np.zeros((2, 2)), 0.0, 0.0, -1e-3, 1e-3, a=a)
+    dsm = GeodeticDSM.from_array(np.zeros((2, 2)), 0.0, 0.0, -1e-3, 1e-3, a=6378.137)     # kilometres
+    assert dsm.a == 6378.137
+
+
+def test_heights_beyond_the_centre_are_refused():
+    """A DSM at -7e6 m was accepted and the following 'hit' the far side of the Earth with no
+    surface height there."""
+    with pytest.raises(pi.DSMError, match=r"heights\[0, 0\] = -7000000.0 is at or below minus the polar radius"):
+        GeodeticDSM.from_array(np.full((3, 3), -7e6), 0.002, 0.0, -1e-3, 1e-3)
+
+
+def test_focal_point_deep_inside_the_body_is_refused():
+    """1e-200 m from the Moon's centre (where every latitude is as near as any) the following took
+    the focal point for a point under the grid and reported a hit there (a fuzz case)."""
+    h = np.random.default_rng(1).normal(120.0, 600.0, (10, 23))
+    dsm = GeodeticDSM.from_array(h, 0.0742, 179.279, -0.016489, 0.032978, a=1737400.0, f=0.0,
+                                 interpolation="nearest")
+    for method in ("following", "exact", "iterative"):
+        with pytest.raises(ValueError, match=r"s\[0\] = .* deeper than half the polar radius"):
+            pi.intersect(dsm, [-1e-200, 0.0, 0.0], [-1.0, 0.0, 0.0], method=method)
+
+
+def test_far_focal_points_are_reanchored():
+    """From 1e12-1e13 m, rays aimed into a 1 m grid came back MISS or STEP_LIMIT (and the
+    following hit 20 km underground from 1.7e13 m): the focal points are now moved along their
+    rays to twice the body's radius and the distances counted from the caller's s."""
+    h = np.zeros((40, 40))
+    h[10:20, 10:20] = 30.0
+    dsm = GeodeticDSM.from_array(h, 45.0, 7.0, -1e-5, 1.4e-5)
+    tgt = geodetic_to_ecef(44.9998, 7.0003, 0.0)
+    up = geodetic_to_ecef(44.9998, 7.0003, 1.0) - tgt
+    rng = np.random.default_rng(0)
+    d = up + rng.normal(0, 0.35, (30, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d = d[(d @ up) > 0.77]
+    near = pi.intersect(dsm, tgt + 1e6 * d, -d, method="exact")
+    assert (near.status == DSMStatus.HIT).all()
+    for dist in (1e12, 1e13):
+        for method in ("exact", "following"):
+            res = pi.intersect(dsm, tgt + dist * d, -d, method=method)
+            assert (res.status == DSMStatus.HIT).all(), (dist, method, res.status)
+            # the same ground points (to the rounding of a line 1e13 m long: ulp ~2e-3 m)
+            assert np.max(np.linalg.norm(res.p - near.p, axis=1)) < 0.05
+            assert np.allclose(res.distance - dist, near.distance - 1e6, rtol=0, atol=0.05)
+            assert np.allclose(res.height, res.surface_height, rtol=0, atol=1e-3)
+
+
+def test_geoid_errors_and_overflow():
+    with pytest.raises(FileNotFoundError, match="geoid file no-such-geoid.tif: no such file"):
+        GeodeticDSM.from_array(np.zeros((2, 2)), 0.0, 0.0, -1e-3, 1e-3, geoid="no-such-geoid.tif")
+    with pytest.raises(pi.DSMError, match="heights \\+ geoid overflows at row 0, column 0"):
+        GeodeticDSM.from_array(np.full((2, 2), 1e308), 0.0, 0.0, -1e-3, 1e-3, geoid=1e308)
+
+
+def test_with_interpolation_checks_its_argument():
+    d1 = GeodeticDSM.from_array(np.full((1, 1), 50.0), 0.001, 0.001, -1e-3, 1e-3, interpolation="nearest")
+    with pytest.raises(pi.DSMError, match="interpolation must be 'bilinear' or 'nearest', got \\['nearest'\\]"):
+        d1.with_interpolation(["nearest"])
+    with pytest.raises(pi.DSMError, match="bilinear interpolation needs at least 2 x 2 cells"):
+        d1.with_interpolation("bilinear")
+
+
+def test_npz_dsm_band_and_array_scalars(tmp_path):
+    path = tmp_path / "d.npz"
+    np.savez(path, heights=np.zeros((3, 3)), lat_first=0.0, lon_first=0.0, dlat=-1e-3, dlon=1e-3)
+    with pytest.raises(pi.DSMError, match="band = 2: a .npz DSM"):
+        GeodeticDSM.read(path, band=2)
+    bad = tmp_path / "e.npz"
+    np.savez(bad, heights=np.zeros((3, 3)), lat_first=np.zeros(3), lon_first=0.0, dlat=-1e-3, dlon=1e-3)
+    with pytest.raises(pi.DSMError, match="lat_first must be a single number"):
+        GeodeticDSM.read(bad)
+
+
+def test_intersect_names_both_surfaces_and_the_latitude_arguments():
+    with pytest.raises(TypeError, match="dem must be a planet_intersect.DEM or GeodeticDSM, got NoneType"):
+        pi.intersect(None, [1e7, 0, 0], [-1, 0, 0], outside="ellipsoid")
+    with pytest.raises(pi.DSMError, match="lat_first, dlat: the latitudes of the pixel centres"):
+        GeodeticDSM.from_array(np.zeros((3, 3)), 95.0, 0.0, -1e-3, 1e-3)
+
+
+def test_int16_geotiff_with_voids_and_no_nodata_tag(tmp_path):
+    """-32768 in an int16 band without a nodata tag (SRTM's void) was read as 32.8 km pits."""
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF reading needs rasterio")
+    from rasterio.transform import from_origin
+
+    data = np.full((4, 4), 120, dtype=np.int16)
+    data[1, 2] = -32768
+    path = tmp_path / "voids.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=4, height=4, count=1, dtype="int16", crs="EPSG:4326",
+                       transform=from_origin(7.0, 45.0, 1e-3, 1e-3)) as dst:
+        dst.write(data, 1)
+    with pytest.raises(pi.DSMError, match="int16 and holds -32768.*pass nodata=-32768"):
+        GeodeticDSM.read(path)
+    dsm = GeodeticDSM.read(path, nodata=-32768)
+    assert np.isnan(dsm.heights[1, 2]) and dsm.hmin == 120.0

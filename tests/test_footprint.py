@@ -6,6 +6,7 @@ over every cell, and formulas written here independently of the module.
 """
 
 import math
+import warnings
 import sys
 
 import numpy as np
@@ -654,3 +655,25 @@ def test_helpers_refuse_bad_arguments(sphere):
         with pytest.raises(ValueError, match=what):
             call()
     assert F.visible_cap_area(0.0, 3390.0) == 0.0
+
+
+def test_second_review_arguments(sphere):
+    """A second review (2026-12-03): occlusion="no" was taken as True; occlusion_tol and
+    progress without occlusion were ignored; scale_height overflowed (r = 1e160), divided by
+    zero (GM = 1e-300) or returned 0 (GM = 1e308); a spacecraft 1e200 km away leaked an
+    overflow warning from |R|^2."""
+    R = _xyz(30.0, 40.0, 3790.0)
+    v = np.array([0.3, -0.2, 1.0])
+    v = v - np.dot(v, R) / np.dot(R, R) * R
+    with pytest.raises(TypeError, match="occlusion must be True or False, got 'no'"):
+        pi.footprint(sphere, R, v, occlusion="no")
+    with pytest.raises(ValueError, match="occlusion_tol and progress apply only with occlusion=True"):
+        pi.footprint(sphere, R, v, occlusion_tol=1e-3)
+    for kw in (dict(r=1e160), dict(GM=1e-300), dict(GM=1e308), dict(T=1e-320)):
+        with pytest.raises(ValueError, match="give no finite positive scale height"):
+            pi.scale_height(**kw)
+    assert pi.scale_height() == pytest.approx(10.8, abs=0.1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")                 # refused, and without an overflow warning first
+        with pytest.raises(ValueError, match=r"R\[0\] = .* is too far from the centre"):
+            pi.footprint(sphere, [1e200, 0, 0], [0, 0, 1.0])

@@ -111,6 +111,28 @@ def test_bulk_fuzz():
     assert run.kinds.get("ok", 0) > run.cases // 2 and run.kinds.get("error:ValueError", 0) > 0, run.kinds
 
 
+#: API calls of the CI bulk run over the geodetic system (tests/fuzzing/geo.py)
+BULK_GEO_CALLS = int(4000 * SCALE)
+
+
+def test_bulk_fuzz_geo():
+    """The geodetic system (GeodeticDSM.from_array, intersect on a DSM by every method,
+    the conversions): no crash, hang, unclear error or wrong result over BULK_GEO_CALLS
+    API calls (fixed seed). Its first runs found a following hit outside the grid on a
+    strongly flattened body, a following hit on the side of a cell facing no-data, the
+    exact conversion 5,000 km off inside the evolute, a focal point at a body's centre
+    taken for a point under the grid, and two errors that named no argument."""
+    from fuzzing.bulk import MIX_GEO, BulkRun
+    from fuzzing.harness import describe
+
+    run = BulkRun(seed=20261203, calls=BULK_GEO_CALLS, jobs=1, batch=200, mix=MIX_GEO,
+                  timeout=float(os.environ.get("PI_FUZZ_TIMEOUT", "20")), log=lambda m: None).run()
+    assert not run.failures, "\n\n".join(f"=== {sig}\n{describe(c, f)}" for sig, (c, f) in run.failures.items())
+    assert run.api_calls >= BULK_GEO_CALLS and run.restarts == 0
+    assert set(run.by_op) == set(MIX_GEO), run.by_op
+    assert run.kinds.get("ok", 0) > run.cases // 2 and run.kinds.get("error:ValueError", 0) > 0, run.kinds
+
+
 def test_bulk_catches_a_crash_and_names_the_case():
     """A segfault inside a batch: the batch is replayed one case at a time, the
     crashing case is reported with its (seed, batch, index), the worker is

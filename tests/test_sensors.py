@@ -500,3 +500,22 @@ def test_yaw_turns_the_detector_line_clockwise_from_above():
             assert d @ unit(right) == pytest.approx(np.linalg.norm(d), rel=1e-3)
         else:
             assert d @ unit(flight) == pytest.approx(-np.linalg.norm(d), rel=1e-3)
+
+
+def test_second_review_sensor_arguments():
+    """A second review (2026-12-03): FrameCamera.nadir below ~6 mm or at 1e300 failed with
+    "look_at coincides with position", an argument the user never passed; from_orbit with
+    gm = 1e-300 around a = 1e30 died of a ZeroDivisionError; NaN positions were named
+    "position[np.int64(0)]"."""
+    cam = pi.FrameCamera.nadir(45.0, 7.0, 1e-3, (4, 4), 0.1)
+    s, l = cam.rays()
+    up = pi.geodetic_to_ecef(45.0, 7.0, 1.0) - pi.geodetic_to_ecef(45.0, 7.0, 0.0)
+    centre = l.reshape(4, 4, 3)[1:3, 1:3].mean(axis=(0, 1))
+    assert np.dot(centre / np.linalg.norm(centre), -up / np.linalg.norm(up)) > 0.99
+    with pytest.raises(ValueError, match="height = 1e\\+300: at most 1e15 a"):
+        pi.FrameCamera.nadir(45.0, 7.0, 1e300, (4, 4), 0.1)
+    with pytest.raises(ValueError, match="no finite positive mean motion"):
+        pi.Pushbroom.from_orbit(altitude=685000.0, inclination=98.0, npixels=64, ifov=0.001, nlines=1,
+                                lat=-42.7, lon=144.9, gm=1e-300, a=1e30)
+    with pytest.raises(ValueError, match=r"position\[0\] has NaN"):
+        pi.FrameCamera.pinhole([np.nan, 0, 7e6], [0, 0, 0], (4, 4), 0.1)

@@ -183,7 +183,8 @@ def test_cli_step_and_margin_refused(tmp_path):
     np.savez(tmp_path / "o.npz", values=vals, lat_first=dsm.lat_first, lon_first=dsm.lon_first, dlat=dsm.dlat,
              dlon=dsm.dlon)
     for extra, message in ((["--step", "1e-9"], "--step 1e-09 makes an image of"),
-                           (["--margin", "-5"], "--margin must be >= 0")):
+                           (["--margin", "-5"], "--margin must be >= 0"),
+                           (["--altitude", "inf"], "--altitude must be a finite positive height")):
         r = subprocess.run([sys.executable, "-m", "planet_intersect.cli", "simulate", "--dsm", tmp_path / "dsm.npz",
                             "--ortho", tmp_path / "o.npz", "--oblique", "9,90", "--out", tmp_path / "run", *extra],
                            capture_output=True, text=True, timeout=300)
@@ -271,3 +272,37 @@ def test_geographic_rasters_on_other_datums(tmp_path):
         pi.GeodeticDSM.read(mars)
     dm = pi.GeodeticDSM.read(mars, a=3396190.0, f=0.0)
     assert dm.a == 3396190.0 and dm.resampling is None
+
+
+# ---------------------------------------------------------------- 2026-12-03: a second review
+def test_arguments_that_were_misread_or_overflowed():
+    """occlusion="no" was taken as True; block_lines=np.int8(100) overflowed in the block
+    arithmetic ("lines 100:-56"); fill=1e300 became inf in the float32 image; a sun vector of
+    1e308 components overflowed into an all-black image. Each is refused or handled, with no
+    warning."""
+    dsm, ortho, scene, vals = flat_scene(n=20)
+    sensor = nadir_sensor(scene)
+    with pytest.raises(TypeError, match="occlusion must be True or False, got 'no'"):
+        pi.simulate_image(dsm, ortho, sensor, occlusion="no")
+    with pytest.raises(ValueError, match="fill = 1e\\+300: the image is float32"):
+        pi.simulate_image(dsm, ortho, sensor, fill=1e300, occlusion=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        a = pi.simulate_image(dsm, ortho, sensor, occlusion=False, block_lines=np.int8(7))
+        b = pi.simulate_image(dsm, ortho, sensor, occlusion=False)
+        np.testing.assert_array_equal(a.image, b.image)
+        up = pi.geodetic_to_ecef(LAT0, LON0, 1.0) - pi.geodetic_to_ecef(LAT0, LON0, 0.0)
+        big = pi.simulate_image(dsm, ortho, sensor, occlusion=False, shading="lambert", sun=up * 1e308)
+        unit = pi.simulate_image(dsm, ortho, sensor, occlusion=False, shading="lambert", sun=up)
+    np.testing.assert_array_equal(big.image, unit.image)
+    assert np.nanmax(unit.image) > 0
+
+
+def test_ortho_lon_first_is_reduced_and_tiny_spacing_refused():
+    """An ortho-image's lon_first of 7 + 360 * 2**40 drifted by up to 17.6 in the image (the DSM
+    already reduced its own exactly); a spacing of 5e-324 degrees overflowed."""
+    vals = np.arange(16.0).reshape(4, 4)
+    o = pi.OrthoImage.from_array(vals, 0.0, 7.0 + 360.0 * 2**40, -1e-3, 1e-3)
+    assert o.lon_first == 7.0
+    with pytest.raises(ValueError, match="dlon = 5e-324 degrees is below"):
+        pi.OrthoImage.from_array(vals, 0.0, 7.0, -1e-3, 5e-324)

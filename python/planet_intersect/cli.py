@@ -16,6 +16,7 @@ Errors print one line on standard error and exit with status 2.
 from __future__ import annotations
 
 import argparse
+import math
 import re
 import shutil
 import sys
@@ -604,6 +605,9 @@ def _sensor_from_args(args, dsm, scene):
     if npix > _SIM_MAX_PIXELS:
         raise CLIError(f"--step {args.step:g} makes an image of {npix:.3g} pixels over the {nr} x {nc} DSM "
                        f"(at most {_SIM_MAX_PIXELS:,}; use a larger --step)")
+    if not (math.isfinite(args.altitude) and 0 < args.altitude <= 1e15 * grid.get("a", 6378137.0)):
+        # inf reached the sensor as "s[0] has NaN" (a review)
+        raise CLIError(f"--altitude must be a finite positive height in metres, got {args.altitude}")
     return Pushbroom(*oblique_pushbroom(grid, zenith=zen, azimuth=az, altitude=args.altitude,
                                         margin=margin, step=args.step))
 

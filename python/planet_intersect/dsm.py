@@ -149,17 +149,37 @@ class GeodeticDSM:
             raise DSMError("dlat must be non-zero (negative for north-up rows)")
         if dlon <= 0:
             raise DSMError(f"dlon must be positive (columns go east), got {dlon}")
+        for name, d in (("dlat", dlat), ("dlon", dlon)):
+            if abs(d) < MIN_SPACING_DEG:
+                # a grid coordinate is (angle - first) / spacing: with angles of ~100 degrees carried to
+                # ~1e-14 degrees, a 1e-12 degree spacing put 0.1 % errors in the heights at pixel
+                # centres, and 5e-324 (0 in radians) crashed the core (a review)
+                raise DSMError(f"{name} = {d!r} degrees is below {MIN_SPACING_DEG:g} degrees (about 1 mm on "
+                               f"the Earth): the grid coordinates of points would be lost to rounding")
         nrows, ncols = h.shape
         lat_last = lat_first + (nrows - 1) * dlat
         if not (-90.0 <= lat_first <= 90.0 and -90.0 <= lat_last <= 90.0):
-            raise DSMError(f"latitudes of the pixel centres run from {lat_first} to {lat_last}: "
-                           f"outside [-90, 90] degrees")
+            raise DSMError(f"lat_first, dlat: the latitudes of the pixel centres run from {lat_first} to "
+                           f"{lat_last}: outside [-90, 90] degrees")
         if ncols * dlon > 360.0 * (1 + 1e-12):
             raise DSMError(f"ncols * dlon = {ncols * dlon} degrees exceeds 360")
         a, f = check_ellipsoid(a, f)
+        if not DSM_A_MIN <= a <= DSM_A_MAX:
+            # the search's tolerances are lengths (1e-6 along the ray: a micrometre in metres, a
+            # millimetre in kilometres): in light years they were 9.5e9 m and hits came 670 m late;
+            # in nanometres the search ran out of steps (a review)
+            raise DSMError(f"a (semi-major axis) = {a:g}: a GeodeticDSM needs lengths in which 1e-6 is a "
+                           f"fine tolerance along a ray, a in [{DSM_A_MIN:g}, {DSM_A_MAX:g}] (the Earth in "
+                           f"kilometres, metres or millimetres)")
         geoid_name = "geoid"
         if isinstance(geoid, (str, os.PathLike)):            # a second raster on the same grid
-            g = GeodeticDSM.read(geoid, a=a, f=f)
+            try:
+                g = GeodeticDSM.read(geoid, a=a, f=f)
+            except FileNotFoundError:
+                # (the reader's own message said "DSM file ...": a review)
+                raise FileNotFoundError(f"geoid file {geoid}: no such file") from None
+            except DSMError as exc:
+                raise DSMError(f"geoid: {exc}") from None
             geoid_name = f"geoid raster {geoid}"
             same = (g.heights.shape == h.shape and
                     np.allclose([g.lat_first, g.lon_first, g.dlat, g.dlon], [lat_first, lon_first, dlat, dlon],
@@ -178,10 +198,26 @@ class GeodeticDSM:
                 bad = np.argwhere(~np.isfinite(np.broadcast_to(n_, h.shape)))[0]
                 raise DSMError(f"{geoid_name} has NaN, Inf or no-data values (first at row {bad[0]}, column "
                                f"{bad[1]}): the undulation is needed at every cell")
-            h = h + n_
+            with np.errstate(over="ignore"):
+                hn = h + n_
+            if (np.isinf(hn) & np.isfinite(h)).any():
+                i, j = np.argwhere(np.isinf(hn) & np.isfinite(h))[0]
+                raise DSMError(f"heights + geoid overflows at row {i}, column {j} ({h[i, j]!r} + "
+                               f"{np.broadcast_to(n_, h.shape)[i, j]!r})")
+            h = hn
         data = np.isfinite(h)
         if not data.any():
             raise DSMError("heights: every cell is no-data")
+        deep = data.copy()
+        deep[data] = h[data] <= -a * (1.0 - f)
+        if deep.any():
+            # at or below minus the polar radius a height lies beyond the body's centre: a DSM
+            # at -7e6 m on the Earth was accepted and the following stepped to the far side and
+            # reported a hit there (a review). (Relief down to -0.88 b on a 13 km body is
+            # supported and tested: test_dsm_edge_rays.py.)
+            i, j = np.argwhere(deep)[0]
+            raise DSMError(f"heights[{i}, {j}] = {float(h[i, j])!r} is at or below minus the polar radius "
+                           f"({a * (1.0 - f):g}): beyond the body's centre")
         hmax_grid = float(np.max(h[data]))
         hmin = float(np.min(h[data]))
         if hmax is None:
@@ -234,8 +270,11 @@ class GeodeticDSM:
 
     def with_interpolation(self, interpolation: str) -> "GeodeticDSM":
         """The same grid with another interpolation (shares the heights)."""
-        if interpolation not in _INTERP:
+        if not isinstance(interpolation, str) or interpolation not in _INTERP:
             raise DSMError(f"interpolation must be 'bilinear' or 'nearest', got {interpolation!r}")
+        if interpolation == "bilinear" and (self.nrows < 2 or self.ncols < 2):
+            raise DSMError(f"interpolation: bilinear interpolation needs at least 2 x 2 cells, "
+                           f"this grid has {self._h.shape}")
         new = object.__new__(type(self))
         new.__dict__.update(self.__dict__)
         new._interp = interpolation
@@ -332,6 +371,8 @@ class GeodeticDSM:
         if isinstance(band, (bool, np.bool_)) or not isinstance(band, (int, np.integer)):
             raise DSMError(f"band must be a whole number (1 for the first band), got {band!r}")
         if path.suffix.lower() == ".npz":
+            if band != 1:
+                raise DSMError(f"band = {band}: a .npz DSM ({path}) has one band (it was ignored: a review)")
             return cls._read_npz(path, nodata, geoid, interpolation, a, f, hmax)
         return cls._read_raster(path, band, nodata, geoid, interpolation, resampling, a, f, hmax)
 
@@ -340,6 +381,10 @@ class GeodeticDSM:
         d = _npz_arrays(path, ("heights", "lat_first", "lon_first", "dlat", "dlon"), "DSM file", DSMError,
                         hint=" (need heights, lat_first, lon_first, dlat, dlon)")
         interp = interpolation or (str(d["interpolation"]) if "interpolation" in d else "bilinear")
+        for key in ("lat_first", "lon_first", "dlat", "dlon", "a", "f", "nodata"):
+            if key in d and np.ndim(d[key]) != 0:
+                raise DSMError(f"DSM file {path}: {key} must be a single number, got an array of shape "
+                               f"{np.shape(d[key])}")
         try:
             dsm = cls.from_array(d["heights"], float(d["lat_first"]), float(d["lon_first"]), float(d["dlat"]),
                                  float(d["dlon"]), a=float(d.get("a", a)), f=float(d.get("f", f)),
@@ -369,6 +414,11 @@ class GeodeticDSM:
             if not (1 <= band <= src.count):
                 raise DSMError(f"DSM file {path}: band {band} does not exist (the file has {src.count})")
             nd = _file_nodata(nodata, src.nodata)
+            if nd is None and src.dtypes[band - 1] == "int16" and int(src.read(band).min()) == -32768:
+                # the usual void of int16 DEMs (SRTM): read as 32.8 km pits (a review); the planetary
+                # reader refuses -32768 as well
+                raise DSMError(f"DSM file {path}: band {band} is int16 and holds -32768, the usual void value, "
+                               f"but has no nodata tag: pass nodata=-32768 (or another value) to read it")
             warped = None
             if src.crs.is_geographic and _geographic_datum(src.crs, src.bounds, path, "DSM", a, f) == "as-is":
                 t = src.transform
@@ -587,6 +637,11 @@ def _npz_arrays(path, required, what: str, error=ValueError, hint: str = "") -> 
     return d
 
 
+#: smallest |dlat| and dlon of a grid (degrees; ~1.1 mm on the Earth)
+MIN_SPACING_DEG = 1e-8
+#: the range of the semi-major axis of a GeodeticDSM (its tolerances are lengths: 1e-6 along a ray)
+DSM_A_MIN, DSM_A_MAX = 1.0, 1e10
+
 #: ``_trace_raw``'s ``fan`` for groups found from the focal points: runs of
 #: consecutive rays with one focal point (pi_dsm_sweep's sweep_runs)
 FAN_RUNS = -1
@@ -617,6 +672,7 @@ def _trace_raw(dsm: GeodeticDSM, s, l, method: str, threads, fan: int = 0):
         k = int(np.argmax(far))
         raise ValueError(f"s[{k}] = {s[k]} is farther than {FAR_LIMIT:g} semi-major axes from the centre "
                          "(the line's position at the body would be lost to rounding)")
+    _check_depth(dsm, s)
     l = _unit_scaled(l)
     n = 0 if min(len(s), len(l)) == 0 else max(len(s), len(l))
     if n == 0:
@@ -625,9 +681,13 @@ def _trace_raw(dsm: GeodeticDSM, s, l, method: str, threads, fan: int = 0):
     s = np.ascontiguousarray(np.broadcast_to(s, (n, 3)))
     l = np.ascontiguousarray(np.broadcast_to(l, (n, 3)))
     pyr, meta = dsm.pyramid()
+    s_core, r0 = _reanchor(dsm, s, l)
     p, q, scal, status, nsteps, stat = _core.core_dsm_trace(
-        *dsm._core_grid()[:7], dsm._core_grid()[7], dsm.hmax, dsm.hmin, pyr, meta.T, s.T, l.T,
+        *dsm._core_grid()[:7], dsm._core_grid()[7], dsm.hmax, dsm.hmin, pyr, meta.T, s_core.T, l.T,
         _DSM_METHODS[method], int(threads), int(fan))
+    if r0 is not None:
+        scal[4] += r0                                 # distances from the caller's s
+        scal[9] += r0
     if stat != 0:
         raise ValueError(f"intersect: the core rejected method {method!r} (status {stat})")
     bad = np.flatnonzero((status == DSMStatus.BAD_POSITION) | (status == DSMStatus.BAD_DIRECTION))
@@ -642,6 +702,57 @@ def _trace_raw(dsm: GeodeticDSM, s, l, method: str, threads, fan: int = 0):
         raise ValueError(f"s[{k}] = {s[k]} is at or below the DSM surface ({inside.size} ray(s) affected): "
                          f"the focal point must be above the surface")
     return n, s, l, p, q, scal, status, nsteps
+
+
+def _reanchor(dsm: GeodeticDSM, s: np.ndarray, l: np.ndarray):
+    """(s for the core, r0 or None): focal points beyond 16 R from the centre (R = a +
+    max(H_max, 0), a sphere holding every point at or below H_max) moved along their
+    (unit) rays to where they enter the sphere of radius 2 R; r0 is added back to the
+    distances. As the planetary core re-anchors a far spacecraft: the core's searches
+    work in lengths near a; from 1e12 m rays aimed into a grid came back MISS or
+    STEP_LIMIT and the following hit 20 km underground (a review). Rays that miss the
+    2 R sphere are left as they are (the core finds them MISS)."""
+    big = 16.0 * (dsm.a + max(dsm.hmax, 0.0))
+    with np.errstate(over="ignore", invalid="ignore"):
+        far = np.einsum("ij,ij->i", s, s) > big * big
+    if not far.any():
+        return s, None
+    rb = 2.0 * (dsm.a + max(dsm.hmax, 0.0))
+    sf, lf = s[far], l[far]
+    lf = lf / np.linalg.norm(lf, axis=1)[:, None]     # _unit_scaled keeps |l|^2 finite and normal
+    b = np.einsum("ij,ij->i", sf, lf)
+    m = sf - b[:, None] * lf                          # the closest approach to the centre
+    d2 = np.einsum("ij,ij->i", m, m)
+    enter = (b < 0) & (d2 < rb * rb)
+    r0 = np.zeros(len(s))
+    r0f = np.where(enter, -b - np.sqrt(np.maximum(rb * rb - d2, 0.0)), 0.0)
+    r0[far] = r0f
+    s2 = s.copy()
+    s2[far] = sf + r0f[:, None] * lf
+    return np.ascontiguousarray(s2), r0
+
+
+def _check_depth(dsm: GeodeticDSM, s: np.ndarray) -> None:
+    """Refuse focal points below every height of the DSM and deeper than half the polar
+    radius: below all of the surface model and nowhere near a viewpoint, where the
+    geodetic coordinates stop meaning a place on the surface (at the centre of a sphere
+    every latitude is as near as any: the following took a focal point 1e-200 m from the
+    Moon's centre for a point under the grid and reported a hit there, a fuzz case)."""
+    from .geodetic import ecef_to_geodetic
+
+    b = dsm.a * (1 - dsm.f)
+    # depth d > b/2 below an ellipsoid that lies within radius a needs |s| < a - b/2
+    with np.errstate(over="ignore", invalid="ignore"):
+        near = np.flatnonzero(np.einsum("ij,ij->i", s, s) < (dsm.a - 0.5 * b) ** 2)
+    if near.size == 0:
+        return
+    h = np.atleast_1d(ecef_to_geodetic(s[near], dsm.a, dsm.f)[2])
+    deep = h < min(dsm.hmin, -0.5 * b)
+    if deep.any():
+        k = int(near[np.argmax(deep)])
+        raise ValueError(f"s[{k}] = {s[k]} lies {-float(h[np.argmax(deep)]):.6g} below the ellipsoid, under every "
+                         f"height of the DSM and deeper than half the polar radius: the focal point must be "
+                         f"above the surface")
 
 
 def _ellipsoid_entry(s, l, a, f):

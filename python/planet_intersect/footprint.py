@@ -109,7 +109,10 @@ def _nonzero(a: np.ndarray, name: str) -> np.ndarray:
     zero = np.max(np.abs(a), axis=1) == 0                # (not |a| == 0: |a|^2 underflows for 1e-200)
     if zero.any():
         raise ValueError(f"{name}[{int(np.argmax(zero))}] has zero length")
-    return np.linalg.norm(a, axis=1)
+    # |a| through the power-of-two scaling (|a|^2 of 1e200 overflowed with a warning: a review)
+    big = np.max(np.abs(a), axis=1)
+    _, e = np.frexp(big)
+    return np.ldexp(np.linalg.norm(np.ldexp(a, -e[:, None]), axis=1), e)
 
 
 def _real(x, name: str, lo=None, hi=None, lo_open=False) -> float:
@@ -672,8 +675,14 @@ def scale_height(T: float = 210.0, r: float = MARS_MEAN_RADIUS_KM, GM: float = M
     r = _real(r, "r", lo=0.0, lo_open=True)
     GM = _real(GM, "GM", lo=0.0, lo_open=True)
     molecular_mass = _real(molecular_mass, "molecular_mass", lo=0.0, lo_open=True)
-    g = GM * 1e9 / (r * 1e3) ** 2                                  # m/s^2
-    return BOLTZMANN * T / (molecular_mass * AMU * g) / 1e3        # km
+    with np.errstate(over="ignore", under="ignore", divide="ignore", invalid="ignore"):
+        g = np.float64(GM) * 1e9 / (np.float64(r) * 1e3) ** 2      # m/s^2 (NumPy: overflow is inf, not an error)
+        H = BOLTZMANN * np.float64(T) / (molecular_mass * AMU * g) / 1e3     # km
+    if not (math.isfinite(H) and H > 0):
+        # r = 1e160 overflowed, GM = 1e-300 divided by zero, GM = 1e308 gave 0 (a review)
+        raise ValueError(f"scale_height: T = {T:g} K, r = {r:g} km, GM = {GM:g} km^3/s^2, molecular_mass = "
+                         f"{molecular_mass:g} give no finite positive scale height")
+    return float(H)
 
 
 # Gauss-Legendre panels on tau in [0, 40] for the Chapman integral (see _chapman_le90)
@@ -766,6 +775,9 @@ def airmass(z_deg, H: float | None = None, R: float | np.ndarray | None = None, 
       scale height H (km) above radius R (km), valid from 0 to 180 deg
       (:func:`chapman` with x = R/H). H defaults to :func:`scale_height` (Mars,
       210 K), R to the Mars mean radius.
+
+    H and R are the Chapman model's: the other models do not use them (the
+    signature is one for all models, DESIGN section 10; a review asked).
     """
     if model not in _AIRMASS_MODELS:
         raise ValueError(f"model must be one of {', '.join(_AIRMASS_MODELS)}, got {model!r}")
@@ -1155,6 +1167,11 @@ def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta:
         raise ValueError(f"airmass_model must be one of {', '.join(_AIRMASS_MODELS)} or None, got {airmass_model!r}")
     if H is not None:
         H = _real(H, "H", lo=0.0, lo_open=True)
+    if not isinstance(occlusion, (bool, np.bool_)):
+        # "no" was taken as True (a review)
+        raise TypeError(f"occlusion must be True or False, got {occlusion!r}")
+    if not occlusion and (occlusion_tol is not None or progress is not None):
+        raise ValueError("occlusion_tol and progress apply only with occlusion=True (they would be ignored)")
     if threads is None:
         threads = 0
     if (isinstance(threads, (bool, np.bool_)) or not isinstance(threads, (int, np.integer)) or threads < 0

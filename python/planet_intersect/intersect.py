@@ -257,12 +257,12 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
             raise TypeError(f"intersect: {sorted(given)} apply to a planetary DEM, not a GeodeticDSM")
         return intersect_dsm(dem, s, l, method="following" if method is None else method, threads=threads,
                              **dsm_options)
+    if not isinstance(dem, DEM):
+        raise TypeError(f"dem must be a planet_intersect.DEM or GeodeticDSM, got {type(dem).__name__}")
     if dsm_options:
         raise TypeError(f"intersect: {sorted(dsm_options)} apply to a GeodeticDSM only")
     if method is None:
         method = "stepping"
-    if not isinstance(dem, DEM):
-        raise TypeError(f"dem must be a planet_intersect.DEM, got {type(dem).__name__}")
     step_mode = _check_mode(step_mode, "step_mode")
     dem_read_mode = _check_mode(dem_read_mode, "dem_read_mode")
     _choice(io, "io", ("records", "mmap"))

@@ -66,7 +66,7 @@ def _array(v, name: str, shape_tail: tuple, ndim: int) -> np.ndarray:
         raise ValueError(f"{name}: expected shape {want}, got {arr.shape}")
     if not np.isfinite(arr).all():
         k = np.argwhere(~np.isfinite(arr))[0]
-        raise ValueError(f"{name}{list(k[:-1])} has NaN or Inf components")
+        raise ValueError(f"{name}{[int(i) for i in k[:-1]]} has NaN or Inf components")
     arr.flags.writeable = False
     return arr
 
@@ -699,6 +699,10 @@ class Pushbroom(Sensor):
             u0, raan = _solve_target(target, inc, ascending, altitude, e, argp, att, yaw_steering,
                                      a, f, gm, omega)
         el = _elements(u0, raan, inc, altitude, e, argp, a, f, gm)
+        if not (math.isfinite(el["n"]) and el["n"] > 0):
+            # gm = 1e-300 around a = 1e30 gave a zero mean motion and a ZeroDivisionError (a review)
+            raise ValueError(f"gm = {gm:g}, a = {a:g}, altitude = {altitude:g}: the orbit has no finite "
+                             f"positive mean motion (sqrt(gm / sma^3) = {el['n']!r})")
         if el["sma"] * (1.0 - e) <= a * (1.0 - f):
             raise ValueError(f"eccentricity = {e}: the perigee radius {el['sma'] * (1 - e):.6g} is below "
                              f"the body's polar radius {a * (1 - f):.6g}")
@@ -978,7 +982,12 @@ class FrameCamera(Sensor):
         lat = _num(lat, "lat (deg)", -90.0, 90.0)
         lon = _num(lon, "lon (deg)")
         height = _num(height, "height", 0.0, lo_open=True)
+        if height > 1e15 * a:
+            raise ValueError(f"height = {height:g}: at most 1e15 a (the direction of a unit vector is "
+                             f"resolved to ~1e-16)")
         pos = geodetic_to_ecef(lat, lon, height, a, f)
         down = -_normal(lat, lon)
-        return cls.pinhole(pos, pos + height * down, shape, ifov, rotation=rotation, up=_north(lat, lon),
+        # the look-at point a semi-major axis down the normal (height * down rounded onto pos for
+        # heights below ~6 mm and overflowed at 1e300: "look_at coincides with position", a review)
+        return cls.pinhole(pos, pos + a * down, shape, ifov, rotation=rotation, up=_north(lat, lon),
                            a=a, f=f)

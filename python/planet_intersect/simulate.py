@@ -119,9 +119,17 @@ class OrthoImage:
             raise ValueError(f"dlat must be non-zero and at most 90 degrees, got {dlat}")
         if not 0 < dlon <= 360:
             raise ValueError(f"dlon must be in (0, 360] degrees (east-going columns), got {dlon}")
+        from .dsm import MIN_SPACING_DEG
+
+        for name, d in (("dlat", dlat), ("dlon", dlon)):
+            if abs(d) < MIN_SPACING_DEG:               # as for a GeodeticDSM (5e-324 overflowed: a review)
+                raise ValueError(f"{name} = {d!r} degrees is below {MIN_SPACING_DEG:g} degrees: the image's "
+                                 f"pixel coordinates would be lost to rounding")
+        if abs(lon_first) >= 360.0:
+            lon_first = math.fmod(lon_first, 360.0)       # exact, as GeodeticDSM does (7 + 360 * 2**40 drifted)
         last = lat_first + (arr.shape[0] - 1) * dlat
         if not (-90 <= lat_first <= 90 and -90 <= last <= 90):
-            raise ValueError(f"the grid's latitudes {lat_first}..{last} leave [-90, 90]")
+            raise ValueError(f"lat_first, dlat: the grid's latitudes {lat_first}..{last} leave [-90, 90]")
         self = object.__new__(cls)
         v = arr.astype(np.float64, copy=True)
         if nodata is not None:
@@ -429,6 +437,13 @@ class _Progress:
         sys.stderr.flush()
 
 
+def _flag(value, name: str) -> bool:
+    """A boolean argument: True/False (or NumPy's); "no" was taken as True (a review)."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    raise TypeError(f"{name} must be True or False, got {value!r}")
+
+
 def _check_sun(sun):
     if sun is None:
         raise ValueError("shading='lambert' needs sun=(azimuth_deg, elevation_deg) or an ECR vector (3,)")
@@ -438,8 +453,11 @@ def _check_sun(sun):
         raise ValueError(f"sun: expected (azimuth_deg, elevation_deg) or an ECR vector (3,), got {sun!r}") from None
     if arr.shape not in ((2,), (3,)) or not np.isfinite(arr).all():
         raise ValueError(f"sun: expected 2 finite angles (deg) or a finite ECR vector (3,), got {sun!r}")
-    if arr.shape == (3,) and not np.linalg.norm(arr) > 0:
-        raise ValueError("sun: the ECR vector has zero length")
+    if arr.shape == (3,):
+        big = np.abs(arr).max()
+        if not big > 0:
+            raise ValueError("sun: the ECR vector has zero length")
+        arr = arr / big                               # a direction: 1e308 components overflowed (a review)
     if arr.shape == (2,) and not -90 <= arr[1] <= 90:
         raise ValueError(f"sun: elevation {arr[1]} outside [-90, 90] degrees")
     return arr
@@ -545,6 +563,11 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
         raise ValueError(f"sun and ambient apply only with shading='lambert' (got shading={shading!r}, "
                          f"sun={sun!r}, ambient={ambient!r})")
     fill = float(fill) if isinstance(fill, (int, float, np.floating, np.integer)) else _number(fill, "fill")
+    if math.isfinite(fill) and abs(fill) > float(np.finfo(np.float32).max):
+        raise ValueError(f"fill = {fill!r}: the image is float32, whose largest value is "
+                         f"{float(np.finfo(np.float32).max):g} (NaN is allowed)")
+    occlusion = _flag(occlusion, "occlusion")
+    progress = _flag(progress, "progress")
     wall_slope = _number(wall_slope, "wall_slope")
     if not 0 < wall_slope < 90:
         raise ValueError(f"wall_slope must be in (0, 90) degrees, got {wall_slope}")
@@ -555,6 +578,8 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
     if block_lines is not None and (not isinstance(block_lines, (int, np.integer)) or isinstance(block_lines, bool)
                                     or block_lines < 1):
         raise ValueError(f"block_lines must be a positive integer or None, got {block_lines!r}")
+    if block_lines is not None:
+        block_lines = int(block_lines)                # np.int8(100) overflowed in the block arithmetic
     check_threads(threads, 1)
     orb = getattr(sensor, "orbit", None)
     if isinstance(orb, dict) and "a" in orb and "f" in orb:

@@ -44,6 +44,8 @@ EOLS = ["\n", "\r\n", "\r"]
 #: share of each operation among the cases (file-writing ones rarer: they cost ~10-50x more)
 MIX = {"intersect": 0.52, "radius": 0.26, "detector": 0.12, "from_array": 0.05, "mutate": 0.02,
        "read": 0.02, "cli_run": 0.005}
+#: the geodetic system's operations (tests/fuzzing/geo.py): ``--geo``, test_bulk_fuzz_geo
+MIX_GEO = {"dsm_intersect": 0.6, "dsm_from_array": 0.25, "geodetic": 0.15}
 
 
 class R:
@@ -517,6 +519,10 @@ def gen_case(seed: int, batch: int, i: int, mix: dict | None = None) -> dict:
     r = R(np.random.default_rng([seed, batch, i]))
     ops_, w = list(mix), np.array(list(mix.values()), dtype=float)
     op = ops_[int(np.searchsorted(np.cumsum(w / w.sum()), r.g.random(), side="right").clip(0, len(ops_) - 1))]
+    if op not in GENERATORS:
+        from .geo import GENERATORS as geo_generators     # geo.py imports this module
+
+        return geo_generators[op](r, seed)
     return GENERATORS[op](r, seed)
 
 

@@ -505,6 +505,10 @@ OPS = {
     "mutate": op_mutate, "detector": op_detector, "cli_run": op_cli_run,
 }
 
+from .geo import OPS as _GEO_OPS  # noqa: E402  (the geodetic system's operations)
+
+OPS.update(_GEO_OPS)
+
 
 def run_case(case: dict) -> dict:
     """Perform one case in a fresh temporary folder; warnings are property violations."""
