@@ -257,13 +257,7 @@ contains
     lo = lo0
     hi = hi0
     x = x0
-    if (.not. (x > lo .and. x < hi)) then
-      if (geometric .and. lo > 0.0_dp .and. hi > 4.0_dp * lo) then
-        x = sqrt(lo) * sqrt(hi)
-      else
-        x = 0.5_dp * (lo + hi)
-      end if
-    end if
+    if (.not. (x > lo .and. x < hi)) x = bracket_mid(lo, hi, geometric)
     do it = 1, geo_maxit
       ! G and G' with two divisions (1/(x + sa), 1/(x + sb)) instead of four
       i0 = 1.0_dp / (x + sa)
@@ -283,13 +277,7 @@ contains
       dfv = -2.0_dp * (q0 * i0 + q1 * i1)
       xn = x - fv / dfv
       newton = xn > lo .and. xn < hi
-      if (.not. newton) then
-        if (geometric .and. lo > 0.0_dp .and. hi > 4.0_dp * lo) then
-          xn = sqrt(lo) * sqrt(hi)
-        else
-          xn = 0.5_dp * (lo + hi)
-        end if
-      end if
+      if (.not. newton) xn = bracket_mid(lo, hi, geometric)
       if (abs(xn - x) <= 1.0e-15_dp * (abs(x) + scale) .or. .not. (hi - lo > 0.0_dp) .or. &
           (early .and. newton .and. x > -0.5_dp * sb .and. abs(xn - x) <= 1.0e-8_dp * (abs(x) + scale))) then
         x = xn
@@ -298,6 +286,19 @@ contains
       x = xn
     end do
   end function eberly_solve
+
+  !> The bisection point of the bracket (lo, hi): the geometric mean while the bracket
+  !> spans more than a factor 4 above zero and geometric is set, else the midpoint.
+  elemental function bracket_mid(lo, hi, geometric) result(m)
+    real(dp), intent(in) :: lo, hi
+    logical, intent(in) :: geometric
+    real(dp) :: m
+    if (geometric .and. lo > 0.0_dp .and. hi > 4.0_dp * lo) then
+      m = sqrt(lo) * sqrt(hi)
+    else
+      m = 0.5_dp * (lo + hi)
+    end if
+  end function bracket_mid
 
   !> The exact conversion behind ecr_to_geodetic (bowring = .true.: Newton
   !> started from Bowring's one-step estimate) and ecr_to_geodetic_nb

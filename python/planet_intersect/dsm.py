@@ -414,7 +414,8 @@ class GeodeticDSM:
             if not (1 <= band <= src.count):
                 raise DSMError(f"DSM file {path}: band {band} does not exist (the file has {src.count})")
             nd = _file_nodata(nodata, src.nodata)
-            if nd is None and src.dtypes[band - 1] == "int16" and int(src.read(band).min()) == -32768:
+            raw = src.read(band)                          # once: the branches below convert it
+            if nd is None and raw.dtype == np.int16 and int(raw.min()) == -32768:
                 # the usual void of int16 DEMs (SRTM): read as 32.8 km pits (a review); the planetary
                 # reader refuses -32768 as well
                 raise DSMError(f"DSM file {path}: band {band} is int16 and holds -32768, the usual void value, "
@@ -424,7 +425,7 @@ class GeodeticDSM:
                 t = src.transform
                 if t.b != 0 or t.d != 0:
                     raise DSMError(f"DSM file {path}: rotated or sheared pixel grid is not supported")
-                heights = src.read(band).astype(np.float64)
+                heights = raw.astype(np.float64)
                 dlon, dlat = t.a, t.e
                 lon_first = t.c + 0.5 * t.a
                 lat_first = t.f + 0.5 * t.e
@@ -436,7 +437,7 @@ class GeodeticDSM:
                 except Exception as exc:  # noqa: BLE001
                     raise DSMError(f"DSM file {path}: cannot be warped to a geodetic grid ({exc})") from None
                 heights = np.full((hgt, w), np.nan)
-                srcdata = src.read(band).astype(np.float64)
+                srcdata = raw.astype(np.float64)
                 if nd is not None:
                     srcdata[srcdata == nd] = np.nan
                 reproject(srcdata, heights, src_transform=src.transform, src_crs=src.crs, src_nodata=np.nan,
