@@ -575,7 +575,9 @@ contains
     real(dp) :: ev, eu, gap
     logical :: out
     integer :: fa, fb, ia, ja, ib, jb, common
-    logical :: tight_u, tight_v
+    integer :: ia0, ia1, ja0, ja1, ib0, ib1, jb0, jb1, ii, jj
+    real(dp) :: w
+    logical :: tight_u, tight_v, oka, okb
     kind = -1
     hc = 0.0_dp
     llen = pb%r - pa%r
@@ -670,6 +672,27 @@ contains
         kind = -1
         if (min(cell_gap(pa%v + 0.5_dp), cell_gap(pb%v + 0.5_dp)) > dev_v .and. &
             min(cell_gap(pa%u + 0.5_dp), cell_gap(ub + 0.5_dp)) > dev_u) kind = chord_nodata
+      end if
+    else if (fa == 0 .and. fb == 0 .and. dsm%interp == interp_nearest .and. tight_u .and. tight_v) then
+      ! both ends on a cell boundary (the lookup takes the cells on both sides, walls solid), the
+      ! path within chord_tol of its chord: it takes the cells its ends' lookups agree on, the
+      ! tallest of them, as the bilinear rule above takes its ends' cells. A ray straight down the
+      ! line where two rows meet, 1e-9 m beside a column boundary whose other side held a taller
+      ! cell, had every segment's box take in that cell through its margins, and the ground was
+      ! searched refine_tol by refine_tol: STEP_LIMIT after 100,216 steps (the simulation fuzzing,
+      ! 2026-12-03); docs/shin-park-notes.md, "Exact mode" 3a
+      call dsm_cells(dsm, pa%u, pa%v, ia0, ia1, ja0, ja1, oka)
+      call dsm_cells(dsm, ub, pb%v, ib0, ib1, jb0, jb1, okb)
+      if (oka .and. okb .and. ia0 == ib0 .and. ia1 == ib1 .and. ja0 == jb0 .and. ja1 == jb1) then
+        hc = -huge(1.0_dp)
+        do ii = ia0, ia1
+          do jj = ja0, ja1
+            w = dsm%hgt(merge(dsm%ncols, jj + 1, jj < 0), ii + 1)     ! (jj = -1: the seam's last column)
+            if (ieee_is_nan(w)) return
+            hc = max(hc, w)
+          end do
+        end do
+        kind = chord_cell
       end if
     end if
 

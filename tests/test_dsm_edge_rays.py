@@ -461,3 +461,35 @@ def test_rays_across_the_gap_of_a_wedge_short_of_a_full_turn(interp):
         assert not np.any(hh[:-1] <= H[:-1] - 1e-9), (k, r[np.argmax(hh <= H)], res.distance[k])   # nothing before
         lat, lon, hh = gd.ecef_to_geodetic(S[k] + (res.distance[k] + 1e-6) * L[k])
         assert hh <= dsm.height(lat, lon) + 1e-9, k                                                # inside there
+
+
+@pytest.mark.parametrize("off_m", [1.8e-9, 3e-9, 1e-8, -1e-8, 0.0, 1e-7, -1e-7, 1e-3, -1e-3])
+def test_nadir_ray_down_a_row_boundary_beside_a_column_boundary(off_m):
+    """The simulation fuzzing (2026-12-03): a ray straight down the line where two "nearest" rows
+    meet (the equator) and 1.8e-9 m east of a column boundary, whose west side holds a 1 m cell:
+    every segment's box took that cell in through its margins, and the ground (0 m) was searched
+    refine_tol by refine_tol: STEP_LIMIT after 100,216 steps. Now the chord rule takes the cells
+    its ends' lookups agree on (here 1.8e-9 to 1e-8 m east failed before). Expectations: the
+    reviewer's reference (its own conversion and surface, whose boundary tolerance is 2.2e-8 m)
+    where the ray is 1e-7 m or more off the boundary; closer, a hit on one of the two sides'
+    surfaces (1 m or 0 m: 449,999 or 450,000 m)."""
+    d = 0.00026949458523585647                        # 30 m cells
+    h = np.array([[1.0, 0.0], [0.0, 0.0]])
+    lat0, lon0 = d / 2, 134.67896845214324 + 5 * d
+    dsm = GeodeticDSM.from_array(h, lat0, lon0, -d, d, interpolation="nearest")
+    lon_b = lon0 + 0.5 * d                             # the column boundary
+    lon = lon_b + np.degrees(off_m / 6378137.0)
+    s = geodetic_to_ecef(0.0, lon, 450000.0)
+    s[2] = 0.0                                         # in the equatorial plane: on the row boundary
+    l = -s / np.linalg.norm(s)
+    res = pi.intersect(dsm, s, l, method="exact")
+    assert res.status[0] == DSMStatus.HIT
+    assert res.nsteps[0] < MAX_STEPS, res.nsteps[0]
+    if abs(off_m) >= 1e-7:
+        surf = ref.Surf(h, lat0, lon0, -d, d, "nearest")
+        kind, r_ref, _ = ref.ray_ref(surf, s, l, r0=449000.0, r1=451000.0, ds=0.01)
+        assert kind == "HIT"
+        assert abs(res.distance[0] - r_ref) < 1e-5, (res.distance[0], r_ref)
+        assert abs(res.distance[0] - (449999.0 if off_m < 0 else 450000.0)) < 1e-5
+    else:
+        assert min(abs(res.distance[0] - 449999.0), abs(res.distance[0] - 450000.0)) < 1e-5, res.distance[0]
