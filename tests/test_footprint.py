@@ -101,6 +101,33 @@ def test_geodetic_conversion_of_points_off_the_spheroid():
     assert np.max(np.abs(h2 - h)) < 1e-8
 
 
+def test_geodetic_latitude_checks_and_nearest_foot():
+    """The footprint fuzzing (2026-12-03): geodetic_latitude took f = 1.5, re = -1, strings and
+    (1, 2) arrays, and inside the evolute returned the equator's normal instead of the nearest
+    foot point. Expectation for the foot: brute force over the meridian ellipse (1e6 points,
+    then a local refinement), nothing from the package."""
+    for kw, name in ((dict(re=MARS_RE, f=1.5), "f"), (dict(re=-1.0, f=MARS_F), "re"),
+                     (dict(re="a", f=MARS_F), "re"), (dict(re=MARS_RE, f=math.nan), "f")):
+        with pytest.raises(ValueError, match=name):
+            F.geodetic_latitude([3000.0, 0.0, 1000.0], **kw)
+    for p in ([[1.0, 2.0]], [math.nan, 0.0, 0.0], "p"):
+        with pytest.raises(ValueError, match="p"):
+            F.geodetic_latitude(p, MARS_RE, MARS_F)
+    a, b = MARS_RE, MARS_RE * (1 - MARS_F)
+    for rho, z in ((10.0, 1e-12), (500.0, 1e-7), (1.0, 3000.0), (3000.0, -5.0)):
+        t = np.linspace(-np.pi / 2, np.pi / 2, 1_000_001)
+        d = np.hypot(rho - a * np.cos(t), z - b * np.sin(t))
+        k = int(np.argmin(d))
+        tt = np.linspace(t[max(k - 1, 0)], t[min(k + 1, t.size - 1)], 200_001)
+        dd = np.hypot(rho - a * np.cos(tt), z - b * np.sin(tt))
+        j = int(np.argmin(dd))
+        want_lat = math.degrees(math.atan2(a * math.sin(tt[j]), b * math.cos(tt[j])))
+        inside = (rho / a) ** 2 + (z / b) ** 2 < 1
+        lat, h = F.geodetic_latitude([rho, 0.0, z], MARS_RE, MARS_F)
+        assert abs(h[0] - (-dd[j] if inside else dd[j])) < 1e-9, (rho, z, h[0], dd[j])
+        assert abs(lat[0] - want_lat) < 1e-5, (rho, z, lat[0], want_lat)
+
+
 def test_latitude_series_printed_has_the_wrong_sign():
     f = MARS_F
     lat = np.linspace(-85, 85, 35)
@@ -394,6 +421,19 @@ def test_chapman_closed_forms():
     assert np.all(np.diff(pi.airmass(z)) > 0)
 
 
+def test_chapman_a_hair_from_the_horizon():
+    """The footprint fuzzing (2026-12-03): 1 - sin z lost its digits near 90 deg, and with
+    x = R/H = 3.4e6 Ch came out 3.7e-6 too high at 89.999999 deg. Expectations: the line
+    integral of exp(-(r(t) - R)/H) dt/H by mpmath quadrature at 40 digits (tanh-sinh, split
+    at the tangent point and at multiples of sqrt(2 R H)), not this module's variable."""
+    for z, H, R, want in ((89.999999, 0.001, 3389.5, 2307.366969434126),
+                          (90.000001, 0.001, 3389.5, 2307.4852853041594),
+                          (89.9999999999, 11.0, 3389.5, 22.027189775121685),
+                          (91.0, 8.5, 6371.0, 52.601908326606537)):
+        got = float(pi.airmass(z, H=H, R=R))
+        assert abs(got - want) <= 1e-12 * want, (z, H, R, got, want)
+
+
 def test_chapman_against_a_direct_integral():
     """Brute-force trapezoid on the line integral (a different variable and rule)."""
     H, R = 11.0, 3389.5
@@ -427,6 +467,27 @@ def test_flux_fraction_cone(sphere):
             assert math.isclose(fp.zeta[s], math.cos(math.radians(psi_q)), rel_tol=1e-14)
             assert mine.sum() == (psi <= psi_q).sum()
     assert len(pi.footprint(sphere, R, v, flux_fraction=1.0)) == len(full)
+
+
+def test_flux_cone_of_a_faint_spectrum_after_a_bright_one():
+    """The footprint fuzzing (2026-12-03): the flux cone's running sum ran over all spectra, so
+    a spectrum whose weights were 1e-15 of an earlier one's (1,000 radii away, after one 6 m
+    above a 4-degree cell) lost them to rounding and kept 11 cells holding 0.06 % of its flux
+    for q = 0.5. Expectation: the same spectrum alone, and the fraction from its own weights."""
+    dem = pi.DEM.from_array(np.full((180, 360), 6378.137))
+    cells = pi.CellTable(dem, 4.0)
+    near = [0.0, -6378.14338, 0.0]
+    far = [0.0, 0.0, -6.38451514e6]
+    both = pi.footprint(cells, [near, far], [1.0, 0.0, 0.0], flux_fraction=0.5)
+    alone = pi.footprint(cells, far, [1.0, 0.0, 0.0], flux_fraction=0.5)
+    assert np.array_equal(both.cell[both.spectrum == 1], alone.cell)
+    full = pi.footprint(cells, far, [1.0, 0.0, 0.0], zeta=0.0)
+    w = F.flux_weights(full)
+    kept = np.isin(full.cell, alone.cell)
+    frac = w[kept].sum() / w.sum()
+    inner = full.nadir_angle < alone.nadir_angle.max() - 1e-9        # the cone without its last ring
+    assert 0.5 <= frac and w[inner].sum() / w.sum() < 0.5, frac
+    assert len(alone) > 900
 
 
 def test_result_exports(sphere):

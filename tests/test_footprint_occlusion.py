@@ -99,3 +99,19 @@ def test_occlusion_on_mola_at_the_footprint_edge(name, lat, lon):
         clear = np.min(np.linalg.norm(p, axis=1) - surface(p))
         if abs(clear) > 0.02:                             # decided by more than 20 m
             assert (clear < 0) == hidden[k], (k, clear)
+
+
+def test_occlusion_tol_below_the_casting_accuracy_is_refused():
+    """The footprint fuzzing (2026-12-03): occlusion_tol = 0 called 8-34 cells of a bare sphere
+    hidden (the exact casting's hits may come up to 1e-9 rmax early). Below 1e-9 rmax it is now
+    refused; at 1e-9 rmax a sphere, which hides none of the cells it selects (d . u > 0 on a
+    sphere is above the horizon), hides none from any distance."""
+    dem = pi.DEM.from_array(np.full((180, 360), 3390.0))
+    cells = pi.CellTable(dem, 2.0)
+    for tol in (0.0, 1e-12 * 3390.0, 0.99e-9 * 3390.0):
+        with pytest.raises(ValueError, match="occlusion_tol = .* below the exact ray casting's accuracy"):
+            pi.footprint(cells, [3490.0, 1.0, 2.0], [0, 1, 0], occlusion=True, occlusion_tol=tol)
+    for alt in (100.0, 1e3, 1e6, 1e8, 1e12):
+        fp = pi.footprint(cells, [3390.0 + alt, 1.0, 2.0], [0, 1, 0], occlusion=True,
+                          occlusion_tol=1e-9 * 3390.0)
+        assert len(fp) > 100 and fp.visible.all(), (alt, len(fp), int(np.sum(~fp.visible)))

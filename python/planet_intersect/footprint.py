@@ -116,7 +116,7 @@ def _nonzero(a: np.ndarray, name: str) -> np.ndarray:
 
 
 def _real(x, name: str, lo=None, hi=None, lo_open=False) -> float:
-    if isinstance(x, (bool, np.bool_)):
+    if isinstance(x, (bool, np.bool_, str, bytes)):          # (float("11") took H="11": one rule for all)
         raise ValueError(f"{name} must be a number, got {x!r}")
     try:
         x = float(x)
@@ -167,34 +167,35 @@ def notes_latitude_series(lat_deg, f: float, corrected: bool = False) -> np.ndar
     return np.degrees(out)
 
 
-def geodetic_latitude(p, re: float, f: float, tol: float = 1e-15, max_iter: int = 20):
-    """Areodetic latitude (deg) and height above the spheroid of points ``p`` (N, 3).
+def geodetic_latitude(p, re: float, f: float):
+    """Areodetic latitude (deg) and height above the spheroid of points ``p`` ((3,) or (N, 3)).
 
-    Full conversion for points off the spheroid (Bowring's iteration on the
-    parametric latitude, to ``tol`` radians, at most ``max_iter`` steps; it
-    converges in two or three for points near the surface). ``f = 0`` gives the
-    areocentric latitude and the height above the sphere ``re``.
+    The foot point is the nearest point of the spheroid (re, f), found by the
+    package's exact conversion (:func:`planet_intersect.ecef_to_geodetic`,
+    checked against PROJ and SPICE) on p / re, so any radius the DEM format
+    allows works; ``f = 0`` gives the areocentric latitude and the height above
+    the sphere ``re``. Returns arrays of shape (N,).
+
+    Until 2026-12-03 this was Bowring's iteration on the parametric latitude
+    (``tol``, ``max_iter``) with no checks of its own. The footprint fuzzing
+    found it taking f = 1.5, re = -1, a string or a (1, 2) array, and,
+    inside the evolute (10 km from Mars's centre, 1e-12 km off the equatorial
+    plane), returning the equator's normal (h = -3386.19 km) instead of the
+    nearest foot point near the pole (h = -3376.2 km). For the cell table's
+    points, near the surface, the two agree to 2.8e-14 deg (docs/grs-notes.md,
+    note 3).
     """
-    p = np.atleast_2d(np.asarray(p, dtype=np.float64))
-    a = re
-    b = re * (1.0 - f)
-    e2 = f * (2.0 - f)
-    ep2 = e2 / (1.0 - e2) if f < 1 else np.inf
-    x, z = np.hypot(p[:, 0], p[:, 1]), p[:, 2]
-    u = np.arctan2(z, (1.0 - f) * x)
-    phi = np.arctan2(z, x)
-    for _ in range(max_iter):
-        phi_new = np.arctan2(z + ep2 * b * np.sin(u) ** 3, x - e2 * a * np.cos(u) ** 3)
-        u = np.arctan2((1.0 - f) * np.sin(phi_new), np.cos(phi_new))
-        done = np.all(np.abs(phi_new - phi) <= tol)
-        phi = phi_new
-        if done:
-            break
-    # height along the normal (stable form for all latitudes)
-    sphi, cphi = np.sin(phi), np.cos(phi)
-    nrad = a / np.sqrt(1.0 - e2 * sphi * sphi)
-    h = x * cphi + z * sphi - a * a / nrad
-    return np.degrees(phi), h
+    from .geodetic import ecef_to_geodetic
+
+    re = _real(re, "re", lo=0.0, lo_open=True)
+    f = _real(f, "f", lo=0.0)
+    if f >= 1.0:
+        raise ValueError(f"f must be in [0, 1), got {f}")
+    pts = _vectors(p, "p")
+    with np.errstate(over="ignore", under="ignore"):
+        q = pts / re
+    lat, _, h = ecef_to_geodetic(q, 1.0, f)
+    return np.atleast_1d(lat), np.atleast_1d(h) * re
 
 
 # ----------------------------------------------------------------------------------------
@@ -699,8 +700,9 @@ def _chapman_nodes():
 _CH_T, _CH_W = _chapman_nodes()
 
 
-def _chapman_le90(x: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """Exact Chapman function Ch(x, z) for 0 <= z <= 90 deg (z in radians), x = R/H.
+def _chapman_le90(x: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Exact Chapman function Ch(x, z) for 0 <= z <= 90 deg, x = R/H, given the
+    co-angle w = 90 deg - z in radians (>= 0).
 
     Ch = (1/H) int_0^inf exp(-(r(s) - R)/H) ds along the straight line from
     radius R at zenith angle z. With c = x sin z, a = x - c and the height
@@ -710,10 +712,14 @@ def _chapman_le90(x: np.ndarray, z: np.ndarray) -> np.ndarray:
     length s1 = 1/(sqrt(a) + sqrt(a + 1)) the exponent is >= tau beyond
     tau = 1, so panels of Gauss-Legendre nodes on [0, 40] integrate it to
     rounding (the tail beyond is < 5e-18).
+
+    1 - sin z is taken as 2 sin^2(w/2) from the co-angle: computed as 1 - sin z
+    it lost all its digits near 90 deg, and with x = 3.4e6 (R = 3389.5, H = 1 m)
+    Ch(x, 89.999999 deg) came out 3.7e-6 too high (the footprint fuzzing; an
+    independent quadrature in mpmath gives 2307.36696943413).
     """
-    c = x * np.sin(z)
-    a = x * (1.0 - np.sin(z))
-    a = np.maximum(a, 0.0)
+    c = x * np.cos(w)
+    a = 2.0 * x * np.sin(0.5 * w) ** 2
     sa = np.sqrt(a)
     s1 = 1.0 / (sa + np.sqrt(a + 1.0))
     out = np.empty(np.shape(x))
@@ -740,18 +746,20 @@ def chapman(x, z_deg) -> np.ndarray:
     value overflows (x (1 - sin z) > ~700).
     """
     x, z = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(z_deg, dtype=np.float64))
-    zr = np.radians(z)
+    # the co-angle |90 - z| from the degrees (exact near 90 deg), not from radians(z)
+    w = np.radians(np.abs(90.0 - z))
     out = np.full(x.shape, np.nan)
     ok = np.isfinite(x) & np.isfinite(z) & (x > 0) & (z >= 0) & (z <= 180)
     lo = ok & (z <= 90)
-    out[lo] = _chapman_le90(x[lo], zr[lo])
+    out[lo] = _chapman_le90(x[lo], w[lo])
     hi = ok & (z > 90)
     if hi.any():
-        xs, zs = x[hi], zr[hi]
-        sz = np.sin(zs)
+        xs, ws = x[hi], w[hi]
+        sz = np.cos(ws)                                   # sin z
         with np.errstate(over="ignore"):
-            grow = np.exp(xs * (1.0 - sz))
-        out[hi] = 2.0 * grow * _chapman_le90(xs * sz, np.full(xs.shape, np.pi / 2)) - _chapman_le90(xs, np.pi - zs)
+            grow = np.exp(2.0 * xs * np.sin(0.5 * ws) ** 2)   # exp(x (1 - sin z))
+        # Ch(x, 180 - z): the same co-angle on the other side of 90 deg
+        out[hi] = 2.0 * grow * _chapman_le90(xs * sz, np.zeros(xs.shape)) - _chapman_le90(xs, ws)
     return out
 
 
@@ -828,7 +836,11 @@ class FootprintResult:
     """Geometry of every (spectrum, cell) pair in the footprints, flat over the pairs.
 
     Pairs are ordered by spectrum, then cell row (south to north), then
-    column. Angles in degrees, lengths in the DEM's units.
+    column eastward from the footprint's western edge in that row: where a
+    row's footprint crosses 0 E the column indices wrap (e.g. ..., 118, 119,
+    0, 1, ... of 120), so ``cell`` is not sorted within a spectrum (the
+    fuzzing found the earlier wording, "then column", untrue there). Angles in
+    degrees, lengths in the DEM's units.
 
     spectrum, cell : int arrays
         Index of the state vector and of the cell (into the :class:`CellTable`).
@@ -850,7 +862,9 @@ class FootprintResult:
         Direction of the cell in the spacecraft frame: azimuth from +y (forward)
         toward +z (left), [0, 360); elevation above the y-z plane (negative below).
         The azimuth and the position angle are NaN for a cell at the
-        sub-spacecraft point (within 1e-13 rad: straight down) [note 5].
+        sub-spacecraft point (within 1e-13 rad: straight down) [note 5]. Without
+        a velocity (``v=None``) the azimuth is NaN and the elevation, which
+        needs only R, is still given.
     visible : bool
         False when ``occlusion=True`` found the terrain blocking the line to the
         spacecraft (such pairs stay in the arrays; the footprint proper is
@@ -1106,7 +1120,9 @@ def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta:
     R, v : array (3,) or (N, 3)
         Spacecraft position and velocity, planet-fixed frame (DEM units, and
         any unit per second for v: only its direction is used). v builds the
-        spacecraft frame (gsh, azimuth, elevation); with v=None those are NaN.
+        spacecraft frame (gsh, azimuth); with v=None those are NaN. The
+        elevation needs only R (the frame's x axis is R_hat, so it is the
+        nadir angle less 90 deg) and is given with or without v.
     area : float
         The detector's projected area A in DEM units squared (default the
         notes' 34 cm^2 = 3.4e-9 km^2): solid angle = A/|d|^2.
@@ -1125,7 +1141,8 @@ def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta:
         ray from the spacecraft to the DEM surface at the cell centre with
         ``intersect(dem, R, l, method="exact")``: the pair is hidden
         (``visible`` False) when the ray enters the surface more than
-        ``occlusion_tol`` (default 1e-6 rmax) before reaching that point.
+        ``occlusion_tol`` (default 1e-6 rmax; at least 1e-9 rmax, the exact
+        casting's accuracy) before reaching that point.
     airmass_model : "chapman", "hardie", "notes", "secant" or None
         Model of ``fp.airmass`` (computed on first access) with the zenith angle
         ``zenith_centric``, the scale height H (default :func:`scale_height`)
@@ -1172,6 +1189,8 @@ def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta:
         raise TypeError(f"occlusion must be True or False, got {occlusion!r}")
     if not occlusion and (occlusion_tol is not None or progress is not None):
         raise ValueError("occlusion_tol and progress apply only with occlusion=True (they would be ignored)")
+    if occlusion:
+        _occlusion_tol(cells.dem, occlusion_tol)          # before the kernel, not after it
     if threads is None:
         threads = 0
     if (isinstance(threads, (bool, np.bool_)) or not isinstance(threads, (int, np.integer)) or threads < 0
@@ -1231,7 +1250,14 @@ def _flux_cone(res: FootprintResult, q: float) -> FootprintResult:
     psi = res.nadir_angle[order]
     starts = np.searchsorted(spec, np.arange(ns))
     counts = np.bincount(spec, minlength=ns)
-    cum = np.cumsum(ws)
+    # each spectrum's weights as fractions of its own total before the running sum: a running
+    # sum over all spectra, less the spectra before, lost a spectrum whose weights were 1e-18 of
+    # an earlier one's (1,000 R away after 6 m up: the footprint fuzzing kept 0.06 % of the
+    # flux for q = 0.5); now each spectrum's share is off by at most ~ns ulp
+    tot = np.bincount(spec, weights=ws, minlength=ns)
+    ts = tot[spec]
+    wn = np.divide(ws, ts, out=np.zeros_like(ws), where=ts > 0)    # (a spectrum with no flux: all 0)
+    cum = np.cumsum(wn)
     base = np.where(starts > 0, cum[np.maximum(starts - 1, 0)], 0.0)
     rel = cum - base[spec]
     total = rel[np.maximum(starts + counts - 1, 0)]
@@ -1245,6 +1271,20 @@ def _flux_cone(res: FootprintResult, q: float) -> FootprintResult:
     return out
 
 
+#: the smallest occlusion_tol, in units of rmax: the exact casting's accuracy along a ray
+OCCLUSION_TOL_MIN = 1e-9
+
+
+def _occlusion_tol(dem: DEM, tol) -> float:
+    """occlusion_tol checked (default 1e-6 rmax), or ValueError naming it."""
+    tol = 1e-6 * dem.rmax if tol is None else _real(tol, "occlusion_tol", lo=0.0)
+    if tol < OCCLUSION_TOL_MIN * dem.rmax:
+        raise ValueError(f"occlusion_tol = {tol:g} is below the exact ray casting's accuracy, "
+                         f"{OCCLUSION_TOL_MIN:g} rmax = {OCCLUSION_TOL_MIN * dem.rmax:g}: its hits may come that "
+                         f"much early, and clear lines of sight would be called hidden")
+    return tol
+
+
 def occluded_not(cells: CellTable, R: np.ndarray, fp: FootprintResult, tol: float | None = None,
                  threads: int = 0, chunk: int = 200_000, progress=None) -> np.ndarray:
     """True for each pair whose line from the spacecraft to the cell is not blocked by terrain [note 14].
@@ -1252,12 +1292,17 @@ def occluded_not(cells: CellTable, R: np.ndarray, fp: FootprintResult, tol: floa
     The ray runs from R[spectrum] to the DEM surface at the cell centre
     (``cells.radius_dem`` along u); it is cast with the package's exact first
     hit (``intersect(..., method="exact")``); the pair is hidden when the hit
-    lies more than ``tol`` (default 1e-6 rmax) short of that point.
+    lies more than ``tol`` (default 1e-6 rmax) short of that point, measured
+    along the ray from the hit to the point (both near the surface, so the
+    shortfall keeps its precision from any distance). ``tol`` must be at least
+    the exact casting's own accuracy, 1e-9 rmax: its hits may come that much
+    early, so a smaller tol would call clear lines hidden (the fuzzing found
+    tol = 0 hiding 8-34 cells of a bare sphere, which hides none) [note 14].
     """
     from .intersect import intersect
 
     dem = cells.dem
-    tol = 1e-6 * dem.rmax if tol is None else _real(tol, "occlusion_tol", lo=0.0)
+    tol = _occlusion_tol(dem, tol)
     n = len(fp)
     out = np.ones(n, dtype=bool)
     if n == 0:
@@ -1268,10 +1313,13 @@ def occluded_not(cells: CellTable, R: np.ndarray, fp: FootprintResult, tol: floa
         s = R[fp.spectrum[sl]]
         target = cells.u[fp.cell[sl]] * cells.radius_dem[fp.cell[sl]][:, None]
         l = target - s
-        length = np.linalg.norm(l, axis=1)
         res = intersect(dem, s, l, method="exact", threads=threads)
-        hit_dist = np.linalg.norm(res.p - s, axis=1)
-        out[sl] = ~(res.hit & (hit_dist < length - tol))
+        # how far the hit lies before the cell's point along the ray: from two points near the
+        # surface (|p - s| and |l| each rounded at ulp(|s|) lost it from far away)
+        lu = l / np.linalg.norm(l, axis=1)[:, None]
+        with np.errstate(invalid="ignore"):
+            short = np.einsum("ij,ij->i", target - res.p, lu)
+        out[sl] = ~(res.hit & (short > tol))
         if progress:
             progress(sl.stop, n)
     return out
