@@ -519,3 +519,28 @@ def test_second_review_sensor_arguments():
                                 lat=-42.7, lon=144.9, gm=1e-300, a=1e30)
     with pytest.raises(ValueError, match=r"position\[0\] has NaN"):
         pi.FrameCamera.pinhole([np.nan, 0, 7e6], [0, 0, 0], (4, 4), 0.1)
+
+
+def test_rays_refuse_non_integer_lines():
+    """The simulation fuzzing (2026-12-03): int() truncated rays(0.5, 1.9) to line 0 and
+    rays(True, 2.7) to line 1 without a word."""
+    cam = pi.FrameCamera.nadir(45.0, 7.0, 1000.0, (4, 3), 0.01)
+    for k0, k1 in ((0.5, 1.9), (True, 2), (0, 2.0), ("0", 2)):
+        with pytest.raises(TypeError, match="integer line index"):
+            cam.rays(k0, k1)
+    s, l = cam.rays(np.int64(1), np.int32(3))
+    s2, l2 = cam.rays(1, 3)
+    assert np.array_equal(l, l2) and l.shape == (2 * 3, 3)
+
+
+@pytest.mark.parametrize("lat", [89.99995059265937, 89.9999999, 90.0 - 1e-12, -89.9999999])
+def test_from_orbit_puts_the_satellite_over_a_point_near_a_pole(lat):
+    """The simulation fuzzing (2026-12-03): the argument of latitude came from asin(sin lat_c /
+    sin i), which lost half its digits near 1: the sub-satellite point 0.69 mm and 11.2 mm off the
+    asked point 1e-5 and 1e-7 deg from the pole. Expectation: the asked geodetic point, by the
+    package's conversion, within 1e-6 m, and the altitude within 1e-6 m."""
+    sen = Pushbroom.from_orbit(altitude=450000.0, inclination=90.0, npixels=1, ifov=1e-4, lat=lat, lon=4.96)
+    la, lo, h = pi.ecef_to_geodetic(sen.s[0], 6378137.0, 1 / 298.257223563)
+    off = np.linalg.norm(pi.geodetic_to_ecef(la, lo, 0.0) - pi.geodetic_to_ecef(lat, 4.96, 0.0))
+    assert off < 1e-6, off
+    assert abs(float(h) - 450000.0) < 1e-6

@@ -306,3 +306,42 @@ def test_ortho_lon_first_is_reduced_and_tiny_spacing_refused():
     assert o.lon_first == 7.0
     with pytest.raises(ValueError, match="dlon = 5e-324 degrees is below"):
         pi.OrthoImage.from_array(vals, 0.0, 7.0, -1e-3, 5e-324)
+
+
+def test_ortho_sample_at_its_own_edge_centres():
+    """The simulation fuzzing (2026-12-03): OrthoImage.sample at the image's own centres() gave NaN
+    for the whole last column of a 22 x 6 grid (its column coordinate rounds to 5.000000000000342
+    of 5); the shading kernel already took points within 1e-6 pixels of the edge onto it. The
+    expectation is the stored values themselves; 1e-3 pixels outside stays NaN."""
+    vals = np.arange(22 * 6, dtype=float).reshape(22, 6)
+    o = pi.OrthoImage.from_array(vals, 70.67173795162601, 8.788884874354663, 8.435302429057608e-05,
+                                 0.0006626611809803053)
+    lat, lon = o.centres()
+    la, lo = np.meshgrid(lat, lon, indexing="ij")
+    got = o.sample(la, lo)
+    assert not np.isnan(got).any()
+    assert np.max(np.abs(got - vals)) < 1e-9
+    out = o.sample(lat[0] - 1e-3 * o.dlat, lon[2])
+    assert np.isnan(out)
+    assert np.isnan(o.sample(lat[3], lon[-1] + 1e-3 * o.dlon))
+
+
+def test_footprint_holds_every_hit_when_the_border_misses_the_dsm():
+    """The simulation fuzzing (2026-12-03): an image wider than its DSM (every border pixel misses
+    it) had hits on 9 ortho pixels and a footprint of 0 (the mask was built only inside the box of
+    the border's hits, and not at all with fewer than 3). Expectation, from the hits themselves:
+    every ortho pixel a hit lands on (nearest centre) is in the footprint; a flat DSM hides none."""
+    lat0, lon0, d = 45.0, 7.0, 1e-5
+    dsm = pi.GeodeticDSM.from_array(np.zeros((11, 11)), lat0, lon0, d, d)
+    ortho = pi.OrthoImage.from_array(np.full((11, 11), 100.0), lat0, lon0, d, d)
+    cam = pi.FrameCamera.nadir(lat0 + 5 * d, lon0 + 5 * d, 100.0, (9, 9), 2.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sim = pi.simulate_image(dsm, ortho, cam, occlusion=True)
+    assert int(sim.valid.sum()) == 9
+    assert not (sim.valid[0].any() or sim.valid[-1].any() or sim.valid[:, 0].any() or sim.valid[:, -1].any())
+    u, v = ortho.grid_coords(sim.lat[sim.valid], sim.lon[sim.valid])
+    seen = set(zip(np.rint(u).astype(int).tolist(), np.rint(v).astype(int).tolist()))
+    assert len(seen) == 9
+    assert all(bool(sim.footprint[i, j]) for i, j in seen)
+    assert int(sim.footprint.sum()) == 9 and not sim.occlusion.any()

@@ -33,7 +33,9 @@ _DSM_METHODS = {"following": 0, "exact": 1, "iterative": 2}
 
 
 def _number(value, name: str) -> float:
-    if isinstance(value, (bool, np.bool_)):
+    # (strings too: float("60") took wall_slope="60" while the sensors and the planetary DEM refuse
+    # them, the simulation fuzzing, 2026-12-03: one rule for every argument)
+    if isinstance(value, (bool, np.bool_, str, bytes)):
         raise DSMError(f"{name} must be a number, got {value!r}")
     try:
         v = float(value)

@@ -52,16 +52,24 @@ def _grid_coords(lat, lon, lat_first, lon_first, dlat, dlon, ncols):
     return u, v
 
 
+#: points within this many pixels outside the rectangle of pixel centres are taken on its edge:
+#: the shading kernel's ortho_edge_tol (fortran/pi_simulate.f90). OrthoImage.sample had none, and
+#: an image's own edge centres, whose coordinates round to 5.000000000000342 of 5, sampled to NaN
+#: (the simulation fuzzing, 2026-12-03)
+ORTHO_EDGE_TOL = 1e-6
+
+
 def _bilinear(values, u, v):
     """Bilinear interpolation of ``values`` (nrows, ncols[, bands]) at fractional
-    (row, col); NaN outside the rectangle of pixel centres or where a needed
-    value is NaN."""
+    (row, col); NaN outside the rectangle of pixel centres (widened by
+    ORTHO_EDGE_TOL, as the shading kernel does) or where a needed value is NaN."""
     nr, nc = values.shape[:2]
     u = np.asarray(u, dtype=np.float64)
     v = np.asarray(v, dtype=np.float64)
-    inside = (u >= 0) & (u <= nr - 1) & (v >= 0) & (v <= nc - 1)
-    uu = np.where(inside, u, 0.0)
-    vv = np.where(inside, v, 0.0)
+    e = ORTHO_EDGE_TOL
+    inside = (u >= -e) & (u <= nr - 1 + e) & (v >= -e) & (v <= nc - 1 + e)
+    uu = np.where(inside, np.clip(u, 0.0, nr - 1), 0.0)
+    vv = np.where(inside, np.clip(v, 0.0, nc - 1), 0.0)
     i = np.minimum(np.floor(uu).astype(np.intp), max(nr - 2, 0))
     j = np.minimum(np.floor(vv).astype(np.intp), max(nc - 2, 0))
     fu, fv = uu - i, vv - j
@@ -262,7 +270,8 @@ class SimResult:
     surface: np.ndarray  #: int8: 0 ground, 1 roof, 2 wall, -1 no hit
     status: np.ndarray  #: int8 DSM ray status (DSMStatus)
     p: np.ndarray  #: hit point, ECR
-    #: True where the ray hit and the ortho-image had a value there (a hit without one gets ``fill``)
+    #: True where the ray hit and the ortho-image had a value there in every band (a hit without one
+    #: gets ``fill``; in a multi-band image, only in the bands that have no value there)
     ortho_value: np.ndarray | None = None
     occlusion: np.ndarray | None = None  #: ortho grid: ground in the footprint hidden from the sensor
     footprint: np.ndarray | None = None  #: ortho grid: inside the image's ground footprint
@@ -797,19 +806,37 @@ def _occlusion(dsm: GeodeticDSM, ortho: OrthoImage, sensor, sim: SimResult, thre
     bk = np.array([b[0] for b in border])
     bm = np.array([b[1] for b in border])
     keep = np.asarray(valid_all[bk, bm])
-    if keep.sum() < 3:
+    polygon = keep.sum() >= 3
+    block = max(1, chunk // max(npx, 1))
+    # the box to work in: the border hits' and every hit's (a first pass over the hits, in blocks of
+    # lines). It was the border hits' alone, and with fewer than 3 of them nothing: an image wider
+    # than the DSM, whose border pixels miss it, had hits on 9 ortho pixels and a footprint of 0,
+    # and hits outside the border's box were dropped (the simulation fuzzing, 2026-12-03)
+    lo_u = lo_v = math.inf
+    hi_u = hi_v = -math.inf
+    if polygon:
+        bu, bv = ortho.grid_coords(np.asarray(sim.lat[bk, bm])[keep], np.asarray(sim.lon[bk, bm])[keep])
+        lo_u, hi_u, lo_v, hi_v = bu.min(), bu.max(), bv.min(), bv.max()
+    for k0 in range(0, nl, block):
+        vb = np.asarray(valid_all[k0:k0 + block])
+        if vb.any():
+            ku, kv = ortho.grid_coords(np.asarray(sim.lat[k0:k0 + block])[vb], np.asarray(sim.lon[k0:k0 + block])[vb])
+            lo_u, hi_u = min(lo_u, np.rint(ku).min()), max(hi_u, np.rint(ku).max())
+            lo_v, hi_v = min(lo_v, np.rint(kv).min()), max(hi_v, np.rint(kv).max())
+    if not (math.isfinite(lo_u) and math.isfinite(lo_v)):
         return occ, foot
-    bu, bv = ortho.grid_coords(np.asarray(sim.lat[bk, bm])[keep], np.asarray(sim.lon[bk, bm])[keep])
-    u0, u1 = max(0, int(np.floor(bu.min()))), min(nr - 1, int(np.ceil(bu.max())))
-    v0, v1 = max(0, int(np.floor(bv.min()))), min(nc - 1, int(np.ceil(bv.max())))
+    u0, u1 = max(0, int(np.floor(lo_u))), min(nr - 1, int(np.ceil(hi_u)))
+    v0, v1 = max(0, int(np.floor(lo_v))), min(nc - 1, int(np.ceil(hi_v)))
     if u1 < u0 or v1 < v0:
         return occ, foot
-    inside = _fill_polygon(bu - u0, bv - v0, u1 - u0 + 1, v1 - v0 + 1)
+    if polygon:
+        inside = _fill_polygon(bu - u0, bv - v0, u1 - u0 + 1, v1 - v0 + 1)
+    else:
+        inside = np.zeros((u1 - u0 + 1, v1 - v0 + 1), dtype=bool)
     # which image line saw each ortho pixel: the hits binned to the nearest pixel, in blocks of lines
     # (a later line overwrites an earlier one), and each line's focal point
     line_of = np.full((u1 - u0 + 1, v1 - v0 + 1), -1, dtype=np.int32)
     focal = np.empty((nl, 3))
-    block = max(1, chunk // max(npx, 1))
     for k0 in range(0, nl, block):
         k1 = min(nl, k0 + block)
         focal[k0:k1] = sensor.rays(k0, k1)[0][::npx]
