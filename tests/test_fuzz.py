@@ -133,6 +133,52 @@ def test_bulk_fuzz_geo():
     assert run.kinds.get("ok", 0) > run.cases // 2 and run.kinds.get("error:ValueError", 0) > 0, run.kinds
 
 
+#: API calls of the CI bulk run over the footprint system (tests/fuzzing/grs.py)
+BULK_GRS_CALLS = int(1500 * SCALE)
+
+
+def test_bulk_fuzz_grs():
+    """The footprint system (CellTable, footprint with the flux cone, occlusion and reused
+    memory, the spacecraft frame and quaternion, the air mass): no crash, hang, unclear error
+    or wrong result over BULK_GRS_CALLS API calls (fixed seed). Its first runs found the flux
+    cone losing a faint spectrum's weights after a bright one, occlusion_tol = 0 hiding cells
+    of a bare sphere, Ch(x, z) 3.7e-6 off a hair from the horizon, and two docstrings that
+    said otherwise than the results (the pairs' column order, the elevation without v)."""
+    from fuzzing.bulk import MIX_GRS, BulkRun
+    from fuzzing.harness import describe
+
+    run = BulkRun(seed=20261204, calls=BULK_GRS_CALLS, jobs=1, batch=100, mix=MIX_GRS,
+                  timeout=float(os.environ.get("PI_FUZZ_TIMEOUT", "20")), log=lambda m: None).run()
+    assert not run.failures, "\n\n".join(f"=== {sig}\n{describe(c, f)}" for sig, (c, f) in run.failures.items())
+    assert run.api_calls >= BULK_GRS_CALLS and run.restarts == 0
+    assert set(run.by_op) == set(MIX_GRS), run.by_op
+    assert run.kinds.get("ok", 0) > run.cases // 2 and run.kinds.get("error:ValueError", 0) > 0, run.kinds
+
+
+#: API calls of the CI bulk run over the image simulation (tests/fuzzing/sim.py)
+BULK_SIM_CALLS = int(3000 * SCALE)
+
+
+def test_bulk_fuzz_sim():
+    """The image simulation (the sensors, OrthoImage.from_array, simulate_image with every option):
+    no crash, hang, unclear error or wrong result over BULK_SIM_CALLS API calls (fixed seed),
+    checked against pi.intersect on the sensor's own rays, the tests' geodesy and a bilinear
+    reference of the ortho-image. Its first runs (a helper, 2026-12-03, ~82,000 calls) found the
+    exact mode giving up (STEP_LIMIT) on a nadir ray down a row boundary beside a column
+    boundary, the occlusion footprint missing hits when the image's border missed the DSM,
+    OrthoImage.sample NaN at its own edge centres, from_orbit 11 mm off near a pole, rays()
+    truncating non-integer lines, and numeric strings taken for numbers."""
+    from fuzzing.bulk import MIX_SIM, BulkRun
+    from fuzzing.harness import describe
+
+    run = BulkRun(seed=20261205, calls=BULK_SIM_CALLS, jobs=1, batch=100, mix=MIX_SIM,
+                  timeout=float(os.environ.get("PI_FUZZ_TIMEOUT", "20")), log=lambda m: None).run()
+    assert not run.failures, "\n\n".join(f"=== {sig}\n{describe(c, f)}" for sig, (c, f) in run.failures.items())
+    assert run.api_calls >= BULK_SIM_CALLS and run.restarts == 0
+    assert set(run.by_op) == set(MIX_SIM), run.by_op
+    assert run.kinds.get("ok", 0) > run.cases // 2 and run.kinds.get("error:ValueError", 0) > 0, run.kinds
+
+
 def test_bulk_catches_a_crash_and_names_the_case():
     """A segfault inside a batch: the batch is replayed one case at a time, the
     crashing case is reported with its (seed, batch, index), the worker is

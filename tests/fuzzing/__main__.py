@@ -34,13 +34,19 @@ def main(argv=None) -> int:
     p.add_argument("--batch", type=int, default=300, help="bulk: cases per worker round trip (default 300)")
     p.add_argument("--geo", action="store_true",
                    help="bulk: the geodetic system's cases (GeodeticDSM, intersect on a DSM, conversions)")
+    p.add_argument("--grs", action="store_true",
+                   help="bulk: the footprint system's cases (CellTable, footprint, frames, air mass)")
+    p.add_argument("--sim", action="store_true",
+                   help="bulk: the image simulation's cases (sensors, OrthoImage, simulate_image)")
     args = p.parse_args(argv)
+    if args.geo + args.grs + args.sim > 1:
+        p.error("--geo, --grs, --sim: one family at a time")
     if args.bulk:
         return bulk_main(args)
     if args.calls is not None:
         p.error("--calls needs --bulk")
-    if args.geo and not args.bulk:
-        p.error("--geo needs --bulk")
+    if (args.geo or args.grs or args.sim) and not args.bulk:
+        p.error("--geo, --grs and --sim need --bulk")
     if args.minutes is None:
         args.minutes = 5.0
     targets = [t for t in args.targets.split(",") if t]
@@ -64,14 +70,14 @@ def main(argv=None) -> int:
 
 
 def bulk_main(args) -> int:
-    from .bulk import MIX_GEO, BulkRun
+    from .bulk import MIX_GEO, MIX_GRS, MIX_SIM, BulkRun
 
     minutes = args.minutes if args.minutes is not None or args.calls is not None else 5.0
     print(f"[bulk] seed {args.seed}, {args.jobs} worker(s), batches of {args.batch}, until "
           + (f"{args.calls} API calls" if args.calls is not None else "") + (" or " if args.calls and minutes else "")
           + (f"{minutes:g} minutes" if minutes else ""), flush=True)
     run = BulkRun(args.seed, calls=args.calls, minutes=minutes, jobs=args.jobs, batch=args.batch,
-                  timeout=args.timeout, mix=MIX_GEO if args.geo else None, log=lambda m: print(m, flush=True)).run()
+                  timeout=args.timeout, mix=MIX_GEO if args.geo else MIX_GRS if args.grs else MIX_SIM if args.sim else None, log=lambda m: print(m, flush=True)).run()
     dt = run.seconds
     print(f"[bulk] done in {dt / 60:.1f} min: {run.cases} cases, {run.api_calls} API calls "
           f"({run.api_calls / max(dt, 1e-9):.0f}/s), {run.batches} batches, worker restarts {run.restarts}")

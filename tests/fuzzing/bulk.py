@@ -46,6 +46,10 @@ MIX = {"intersect": 0.52, "radius": 0.26, "detector": 0.12, "from_array": 0.05, 
        "read": 0.02, "cli_run": 0.005}
 #: the geodetic system's operations (tests/fuzzing/geo.py): ``--geo``, test_bulk_fuzz_geo
 MIX_GEO = {"dsm_intersect": 0.6, "dsm_from_array": 0.25, "geodetic": 0.15}
+#: the footprint system's operations (tests/fuzzing/grs.py): ``--grs``, test_bulk_fuzz_grs
+MIX_GRS = {"footprint": 0.5, "frame": 0.15, "airmass": 0.12, "cell_table": 0.08, "helpers": 0.15}
+#: the image simulation's operations (tests/fuzzing/sim.py): ``--sim``, test_bulk_fuzz_sim
+MIX_SIM = {"simulate": 0.6, "sensor": 0.25, "ortho_from_array": 0.15}
 
 
 class R:
@@ -520,10 +524,17 @@ def gen_case(seed: int, batch: int, i: int, mix: dict | None = None) -> dict:
     ops_, w = list(mix), np.array(list(mix.values()), dtype=float)
     op = ops_[int(np.searchsorted(np.cumsum(w / w.sum()), r.g.random(), side="right").clip(0, len(ops_) - 1))]
     if op not in GENERATORS:
-        from .geo import GENERATORS as geo_generators     # geo.py imports this module
-
-        return geo_generators[op](r, seed)
+        return family_generators()[op](r, seed)
     return GENERATORS[op](r, seed)
+
+
+def family_generators() -> dict:
+    """The generators of the other systems' families (geo.py, grs.py, sim.py), which import this module."""
+    from .geo import GENERATORS as geo_generators
+    from .grs import GENERATORS as grs_generators
+    from .sim import GENERATORS as sim_generators
+
+    return {**geo_generators, **grs_generators, **sim_generators}
 
 
 # ---------------------------------------------------------------------------- worker side

@@ -319,7 +319,20 @@ def reproducer(case: dict) -> str:
                                          "import subprocess",
                                          f"subprocess.run(['planet-intersect', 'run', 'cli.hdr', 'rays.txt', "
                                          f"'--out', 'out'] + {list(case.get('options', []))!r})"]
+    if op in _family_ops():
+        # the other systems' families (geo.py, grs.py, sim.py): the case dict replayed by its own operation
+        head.append("import sys; sys.path.insert(0, 'tests')   # from the repository's root")
+        body.append(f"from fuzzing import ops; ops.OPS[{op!r}](case, __import__('pathlib').Path('.'))"
+                    "   # case: printed below")
     return "\n".join(head + body)
+
+
+def _family_ops() -> set:
+    from .geo import OPS as geo_ops
+    from .grs import OPS as grs_ops
+    from .sim import OPS as sim_ops
+
+    return set(geo_ops) | set(grs_ops) | set(sim_ops)
 
 
 def _data_code(data: bytes) -> str:

@@ -508,6 +508,12 @@ OPS = {
 from .geo import OPS as _GEO_OPS  # noqa: E402  (the geodetic system's operations)
 
 OPS.update(_GEO_OPS)
+from .grs import OPS as _GRS_OPS  # noqa: E402  (the footprint system's operations)
+
+OPS.update(_GRS_OPS)
+from .sim import OPS as _SIM_OPS  # noqa: E402  (the image simulation's operations)
+
+OPS.update(_SIM_OPS)
 
 
 def run_case(case: dict) -> dict:
