@@ -122,14 +122,22 @@ def test_bulk_fuzz_geo():
     strongly flattened body, a following hit on the side of a cell facing no-data, the
     exact conversion 5,000 km off inside the evolute, a focal point at a body's centre
     taken for a point under the grid, and two errors that named no argument."""
-    from fuzzing.bulk import MIX_GEO, BulkRun
+    from fuzzing.bulk import MIX_GEO
+
+    _family_run(MIX_GEO, seed=20261203, calls=BULK_GEO_CALLS, batch=200)
+
+
+def _family_run(mix: dict, seed: int, calls: int, batch: int) -> None:
+    """A bulk run over one family's operations: no failure, every operation drawn, most cases
+    normal results and some refused with a ValueError."""
+    from fuzzing.bulk import BulkRun
     from fuzzing.harness import describe
 
-    run = BulkRun(seed=20261203, calls=BULK_GEO_CALLS, jobs=1, batch=200, mix=MIX_GEO,
+    run = BulkRun(seed=seed, calls=calls, jobs=1, batch=batch, mix=mix,
                   timeout=float(os.environ.get("PI_FUZZ_TIMEOUT", "20")), log=lambda m: None).run()
     assert not run.failures, "\n\n".join(f"=== {sig}\n{describe(c, f)}" for sig, (c, f) in run.failures.items())
-    assert run.api_calls >= BULK_GEO_CALLS and run.restarts == 0
-    assert set(run.by_op) == set(MIX_GEO), run.by_op
+    assert run.api_calls >= calls and run.restarts == 0
+    assert set(run.by_op) == set(mix), run.by_op
     assert run.kinds.get("ok", 0) > run.cases // 2 and run.kinds.get("error:ValueError", 0) > 0, run.kinds
 
 
@@ -144,15 +152,9 @@ def test_bulk_fuzz_grs():
     cone losing a faint spectrum's weights after a bright one, occlusion_tol = 0 hiding cells
     of a bare sphere, Ch(x, z) 3.7e-6 off a hair from the horizon, and two docstrings that
     said otherwise than the results (the pairs' column order, the elevation without v)."""
-    from fuzzing.bulk import MIX_GRS, BulkRun
-    from fuzzing.harness import describe
+    from fuzzing.bulk import MIX_GRS
 
-    run = BulkRun(seed=20261204, calls=BULK_GRS_CALLS, jobs=1, batch=100, mix=MIX_GRS,
-                  timeout=float(os.environ.get("PI_FUZZ_TIMEOUT", "20")), log=lambda m: None).run()
-    assert not run.failures, "\n\n".join(f"=== {sig}\n{describe(c, f)}" for sig, (c, f) in run.failures.items())
-    assert run.api_calls >= BULK_GRS_CALLS and run.restarts == 0
-    assert set(run.by_op) == set(MIX_GRS), run.by_op
-    assert run.kinds.get("ok", 0) > run.cases // 2 and run.kinds.get("error:ValueError", 0) > 0, run.kinds
+    _family_run(MIX_GRS, seed=20261204, calls=BULK_GRS_CALLS, batch=100)
 
 
 #: API calls of the CI bulk run over the image simulation (tests/fuzzing/sim.py)
@@ -168,15 +170,9 @@ def test_bulk_fuzz_sim():
     boundary, the occlusion footprint missing hits when the image's border missed the DSM,
     OrthoImage.sample NaN at its own edge centres, from_orbit 11 mm off near a pole, rays()
     truncating non-integer lines, and numeric strings taken for numbers."""
-    from fuzzing.bulk import MIX_SIM, BulkRun
-    from fuzzing.harness import describe
+    from fuzzing.bulk import MIX_SIM
 
-    run = BulkRun(seed=20261205, calls=BULK_SIM_CALLS, jobs=1, batch=100, mix=MIX_SIM,
-                  timeout=float(os.environ.get("PI_FUZZ_TIMEOUT", "20")), log=lambda m: None).run()
-    assert not run.failures, "\n\n".join(f"=== {sig}\n{describe(c, f)}" for sig, (c, f) in run.failures.items())
-    assert run.api_calls >= BULK_SIM_CALLS and run.restarts == 0
-    assert set(run.by_op) == set(MIX_SIM), run.by_op
-    assert run.kinds.get("ok", 0) > run.cases // 2 and run.kinds.get("error:ValueError", 0) > 0, run.kinds
+    _family_run(MIX_SIM, seed=20261205, calls=BULK_SIM_CALLS, batch=100)
 
 
 def test_bulk_catches_a_crash_and_names_the_case():

@@ -528,6 +528,19 @@ def gen_case(seed: int, batch: int, i: int, mix: dict | None = None) -> dict:
     return GENERATORS[op](r, seed)
 
 
+def spec_cached(cache: dict, spec: dict, build, limit: int = 200):
+    """The object a spec describes, built once per worker (``build()``; DSMs, DEMs and images are
+    immutable), the cache emptied when it holds more than ``limit``."""
+    key = repr(sorted(spec.items()))
+    obj = cache.get(key)
+    if obj is None:
+        obj = build()
+        if len(cache) > limit:
+            cache.clear()
+        cache[key] = obj
+    return obj
+
+
 def family_generators() -> dict:
     """The generators of the other systems' families (geo.py, grs.py, sim.py), which import this module."""
     from .geo import GENERATORS as geo_generators

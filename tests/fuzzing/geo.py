@@ -33,7 +33,7 @@ import math
 
 import numpy as np
 
-from .bulk import DBL_MAX, EXTREME, R, bad_vector
+from .bulk import DBL_MAX, EXTREME, R, bad_vector, spec_cached
 
 WGS84 = (6378137.0, 1.0 / 298.257223563)
 #: bodies in metres: the Earth, Mars (areodetic), the Moon (a sphere), a 13 km oblate small body
@@ -210,15 +210,11 @@ DSM_CACHE: dict = {}
 def make_dsm(spec: dict):
     import planet_intersect as pi
 
-    key = repr(sorted(spec.items()))
-    dsm = DSM_CACHE.get(key)
-    if dsm is None:
+    def build():
         args, kw = dsm_args(spec)
-        dsm = pi.GeodeticDSM.from_array(*args, **kw)
-        if len(DSM_CACHE) > 200:
-            DSM_CACHE.clear()
-        DSM_CACHE[key] = dsm
-    return dsm
+        return pi.GeodeticDSM.from_array(*args, **kw)
+
+    return spec_cached(DSM_CACHE, spec, build)
 
 
 _POOL: dict = {}

@@ -130,7 +130,7 @@ import warnings
 
 import numpy as np
 
-from .bulk import R
+from .bulk import R, spec_cached
 
 WGS84 = (6378137.0, 1.0 / 298.257223563)
 MARS = (3396190.0, 1.0 / 169.894)
@@ -332,15 +332,11 @@ _ORTHO_CACHE: dict = {}
 def make_ortho(spec: dict):
     import planet_intersect as pi
 
-    key = repr(sorted(spec.items()))
-    o = _ORTHO_CACHE.get(key)
-    if o is None:
+    def build():
         args, kw = ortho_args(spec)
-        o = pi.OrthoImage.from_array(*args, **kw)
-        if len(_ORTHO_CACHE) > 200:
-            _ORTHO_CACHE.clear()
-        _ORTHO_CACHE[key] = o
-    return o
+        return pi.OrthoImage.from_array(*args, **kw)
+
+    return spec_cached(_ORTHO_CACHE, spec, build)
 
 
 def _dsm(spec):
