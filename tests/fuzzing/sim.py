@@ -617,7 +617,8 @@ def _sensor_spoil_expect(spec) -> str:
     if arg == "ifov" and v == 60.0 and spec["kind"] == "orbit":
         if spec.get("look_angles") is not None:
             return "accept"                             # ifov then only documents the pixel size
-        return "accept" if spec["npixels"] <= 2 else "refuse"   # outer pixels (n-1)/2 * 60 deg off
+        # outer pixels (n-1)/2 * 60 deg off the boresight, refused from 90 (from_orbit's docs): n >= 4
+        return "accept" if spec["npixels"] <= 3 else "refuse"
     return "refuse"
 
 
