@@ -14,7 +14,7 @@ module pi_simulate
   use pi_kinds, only: dp, sp, i1
   use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, interp_nearest, pt_ok
   use pi_vector, only: pi, deg
-  use pi_ieee, only: nan_dp, ieee_is_finite => is_finite
+  use pi_ieee, only: nan_dp, ieee_is_finite => is_finite, ieee_is_nan => is_nan
   !$ use omp_lib, only: omp_get_max_threads
   implicit none
   private
@@ -281,7 +281,12 @@ contains
     ground = grid_bilinear(gnd, u, v)
     if (wall) then
       kind = kind_wall
-    else if (h - ground > opt%roof_min) then          ! false when the ground is unknown (NaN)
+    else if (ieee_is_nan(ground)) then
+      ! the ground unknown: not a roof. (This was "h - ground > roof_min", false for a NaN, but an
+      ! ordered comparison with a NaN raises IEEE invalid, which the runtime-checked build's fuzz
+      ! worker traps: CI, 2026-12-03.)
+      kind = kind_ground
+    else if (h - ground > opt%roof_min) then
       kind = kind_roof
     else
       kind = kind_ground

@@ -89,6 +89,7 @@ class Worker:
                 os.close(fd)
             except OSError:
                 pass
+        self._r = self._w = None
         try:
             self.proc.wait(timeout=5)
         except subprocess.TimeoutExpired:
@@ -103,9 +104,18 @@ class Worker:
         self.proc.wait()
 
     def _ended(self) -> None:
-        """The worker process has ended: forget it and remove its scratch directory."""
+        """The worker process has ended: close the parent's ends of its pipes (a crashed or hung
+        worker's were left open, two descriptors per restart), forget it, remove its scratch
+        directory."""
         import shutil
 
+        for fd in (getattr(self, "_r", None), getattr(self, "_w", None)):
+            if fd is not None:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+        self._r = self._w = None
         self.proc = None
         if self._scratch is not None:
             shutil.rmtree(self._scratch, ignore_errors=True)
@@ -126,8 +136,11 @@ class Worker:
             left = deadline - time.monotonic()
             if left <= 0:
                 return "timeout"
-            ready, _, _ = select.select([self._r], [], [], left)
-            if not ready:
+            # poll, not select: select() refuses descriptors >= 1024 ("filedescriptor out of range",
+            # seen in CI's runtime-checked subset, whose pytest process had that many open by then)
+            poller = select.poll()
+            poller.register(self._r, select.POLLIN | select.POLLHUP | select.POLLERR)
+            if not poller.poll(max(1, int(left * 1000))):
                 continue
             chunk = os.read(self._r, max(need - len(buf), 1 << 16) if size is not None else need - len(buf))
             if not chunk:
