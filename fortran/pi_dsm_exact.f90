@@ -677,7 +677,7 @@ contains
       ! both ends on a cell boundary (the lookup takes the cells on both sides, walls solid), the
       ! path within chord_tol of its chord: it takes the cells its ends' lookups agree on, the
       ! tallest of them, as the bilinear rule above takes its ends' cells. A ray straight down the
-      ! line where two rows meet, 1e-9 m beside a column boundary whose other side held a taller
+      ! line where two rows meet, 1.8e-9 m beside a column boundary whose other side held a taller
       ! cell, had every segment's box take in that cell through its margins, and the ground was
       ! searched refine_tol by refine_tol: STEP_LIMIT after 100,216 steps (the simulation fuzzing,
       ! 2026-12-03); docs/shin-park-notes.md, "Exact mode" 3a

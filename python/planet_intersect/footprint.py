@@ -1251,8 +1251,8 @@ def _flux_cone(res: FootprintResult, q: float) -> FootprintResult:
     starts = np.searchsorted(spec, np.arange(ns))
     counts = np.bincount(spec, minlength=ns)
     # each spectrum's weights as fractions of its own total before the running sum: a running
-    # sum over all spectra, less the spectra before, lost a spectrum whose weights were 1e-18 of
-    # an earlier one's (1,000 R away after 6 m up: the footprint fuzzing kept 0.06 % of the
+    # sum over all spectra, less the spectra before, lost a spectrum whose weights were 1e-15 of
+    # an earlier one's (1,000 R away after one 6 m up: the footprint fuzzing kept 0.06 % of its
     # flux for q = 0.5); now each spectrum's share is off by at most ~ns ulp
     tot = np.bincount(spec, weights=ws, minlength=ns)
     ts = tot[spec]
@@ -1314,8 +1314,9 @@ def occluded_not(cells: CellTable, R: np.ndarray, fp: FootprintResult, tol: floa
         target = cells.u[fp.cell[sl]] * cells.radius_dem[fp.cell[sl]][:, None]
         l = target - s
         res = intersect(dem, s, l, method="exact", threads=threads)
-        # how far the hit lies before the cell's point along the ray: from two points near the
-        # surface (|p - s| and |l| each rounded at ulp(|s|) lost it from far away)
+        # how far the hit lies before the cell's point along the ray, from two points near the
+        # surface (|l| - |p - s| has both lengths rounded at ulp(|s|), which from 1e10 km is the
+        # size of the smallest allowed tol; no pair was found misjudged that way)
         lu = l / np.linalg.norm(l, axis=1)[:, None]
         with np.errstate(invalid="ignore"):
             short = np.einsum("ij,ij->i", target - res.p, lu)

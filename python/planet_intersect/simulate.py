@@ -821,8 +821,9 @@ def _occlusion(dsm: GeodeticDSM, ortho: OrthoImage, sensor, sim: SimResult, thre
         vb = np.asarray(valid_all[k0:k0 + block])
         if vb.any():
             ku, kv = ortho.grid_coords(np.asarray(sim.lat[k0:k0 + block])[vb], np.asarray(sim.lon[k0:k0 + block])[vb])
-            lo_u, hi_u = min(lo_u, np.rint(ku).min()), max(hi_u, np.rint(ku).max())
-            lo_v, hi_v = min(lo_v, np.rint(kv).min()), max(hi_v, np.rint(kv).max())
+            ku, kv = np.rint(ku), np.rint(kv)                    # the pixels the second pass bins them to
+            lo_u, hi_u = min(lo_u, ku.min()), max(hi_u, ku.max())
+            lo_v, hi_v = min(lo_v, kv.min()), max(hi_v, kv.max())
     if not (math.isfinite(lo_u) and math.isfinite(lo_v)):
         return occ, foot
     u0, u1 = max(0, int(np.floor(lo_u))), min(nr - 1, int(np.ceil(hi_u)))
