@@ -493,3 +493,58 @@ def test_nadir_ray_down_a_row_boundary_beside_a_column_boundary(off_m):
         assert abs(res.distance[0] - (449999.0 if off_m < 0 else 450000.0)) < 1e-5
     else:
         assert min(abs(res.distance[0] - 449999.0), abs(res.distance[0] - 450000.0)) < 1e-5, res.distance[0]
+
+
+def test_frame_camera_in_a_walls_plane_answers_on_one_side_or_the_other():
+    """The simulation fuzzing's case (seed 6262, 2026-12-03): a nadir frame camera 3 km above a
+    "nearest" column boundary of 30 m cells, its five pixels in the boundary's meridian plane (the
+    rays' offset from it, 4.7e-10 m, is below the rounding of s.n, 9.3e-10 m). Which column holds a
+    point of such a ray is decided by the last bits of its conversion, and the package's
+    conversions (the sweep's, the fast path's, the reference's) differ there. Every answer, one
+    ray at a time or swept as a fan, must be a first entry on one side or the other: no earlier than
+    the taller column's roof, no later than the lower column's (the tests' own geodesy), at a height
+    between the two roofs; the fuzz check allows the same (fuzzing/geo.py, _low_by_rounding). The fast path answered pixel 2 2.1e-5 m after the
+    taller roof's entry, where its lookup flipped to the taller column: allowed by this rule, not
+    by the sampling check without it."""
+    from fuzzing import bulk
+    from fuzzing.geo import make_dsm
+    from fuzzing.sim import build_sensor
+    from references.geodesy import ecef_to_geodetic_rad
+
+    case = bulk.gen_case(6262, 312, 38, bulk.MIX_SIM)
+    dsm = make_dsm(case["dsm"])
+    s, l = build_sensor(case["sensor"]).rays()
+    s = np.broadcast_to(np.asarray(s, dtype=float).reshape(-1, 3), (5, 3))
+    l = np.asarray(l, dtype=float).reshape(-1, 3)
+    l = l / np.linalg.norm(l, axis=1)[:, None]
+    h = np.asarray(dsm.heights)
+    fan = pi.intersect(dsm, s, l, method="exact")
+    one = [pi.intersect(dsm, s[k:k + 1], l[k:k + 1], method="exact") for k in range(5)]
+    a, f = dsm.a, dsm.f
+    for k in range(5):
+        # the two columns beside the plane at this ray's row, and where the ray reaches each roof
+        # (the tests' geodesy; bisection on h(r) - H, which falls monotonically along this ray)
+        def geo(r):
+            p = s[k] + np.atleast_1d(r)[:, None] * l[k]
+            sphi, cphi, lon, hh = ecef_to_geodetic_rad(p[:, 0], p[:, 1], p[:, 2], a, f)
+            lat = np.degrees(np.arctan2(sphi, cphi))
+            return lat, np.degrees(lon), hh
+        lat_k, lon_k, _ = geo(fan.distance[k])
+        row = int(np.floor((lat_k[0] - dsm.lat_first) / dsm.dlat + 0.5))
+        u = (lon_k[0] - dsm.lon_first) / dsm.dlon
+        assert abs(u - 9.5) < 1e-9                               # in the wall's plane
+        roofs = sorted((h[row, 9], h[row, 10]))
+
+        def entry(H):
+            lo, hi = 2900.0, 3100.0
+            for _ in range(80):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (mid, hi) if geo(mid)[2][0] > H else (lo, mid)
+            return hi
+        r_tall, r_low = entry(roofs[1]), entry(roofs[0])
+        for who, res in (("fan", fan), ("one", one[k])):
+            j = k if who == "fan" else 0
+            assert res.status[j] == DSMStatus.HIT, (who, k)
+            d = res.distance[j]
+            assert r_tall - 1e-6 <= d <= r_low + 1e-6, (who, k, d, r_tall, r_low)
+            assert roofs[0] - 1e-6 <= res.height[j] <= roofs[1] + 1e-6, (who, k)
