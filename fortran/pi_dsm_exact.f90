@@ -628,6 +628,27 @@ contains
       ! over no-data) had every segment's box touch the no-data cell through the rounding allowance:
       ! STEP_LIMIT (a seventh review). A flip of the lookup between the ends is not looked for (a ray
       ! exactly on such a line, where the lookup flips with the last bit, can so end in a hit).
+      ! An end exactly on an interior node line (point_class: no one cell) is taken in the cell the
+      ! lookup itself uses there (dsm_cells): a nadir ray in the equator's plane, along a node row
+      ! at latitude 0 with a no-data node in the row beside it, had every box take in that node
+      ! and ended STEP_LIMIT after 100,216 segments where the following hit (the simulation's fuzz
+      ! family, seed 7301). Only when each coordinate of each end is exactly on a node line or off
+      ! every node line by more than the rounding allowance: a nadir ray on a node column whose
+      ! latitude sat within an ulp of a node row flickered between the rows, and the rule over the
+      ! ends' row missed the no-data point between them, 100 m late (a review; docs/shin-park-notes.md,
+      ! "Exact mode" 3a)
+      if (tight_u .and. tight_v .and. fa == 0 .and. fb == 0 .and. (ia < 0 .or. ib < 0) .and. &
+          on_or_off(pa%u, dev_u) .and. on_or_off(ub, dev_u) .and. on_or_off(pa%v, dev_v) .and. &
+          on_or_off(pb%v, dev_v)) then
+        call dsm_cells(dsm, pa%u, pa%v, ia0, ia1, ja0, ja1, oka)
+        call dsm_cells(dsm, ub, pb%v, ib0, ib1, jb0, jb1, okb)
+        if (oka .and. okb) then
+          ia = ia0
+          ja = ja0
+          ib = ib0
+          jb = jb0
+        end if
+      end if
       if (tight_u .and. tight_v .and. ia >= 0 .and. ib >= 0) then
         if (abs(ia - ib) <= 1 .and. abs(ja - jb) <= 1) then
           call dsm_box_bound(dsm, max(min(pa%u, ub) - dlon_r / dsm%dlon, real(min(ja, jb), dp)), &
@@ -705,6 +726,13 @@ contains
       f = x - floor(x)
       g = min(f, 1.0_dp - f)
     end function cell_gap
+
+    !> x exactly on a node line (an integer), or farther from every node line than dev
+    pure function on_or_off(x, dev) result(ok)
+      real(dp), intent(in) :: x, dev
+      logical :: ok
+      ok = x == aint(x) .or. cell_gap(x) > dev
+    end function on_or_off
 
   end subroutine chord_class
 

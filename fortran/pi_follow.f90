@@ -295,7 +295,7 @@ contains
     type(dsm_ray_t), intent(inout) :: res
     logical, intent(in), optional :: exact_steps
     real(dp) :: re, pe(3), late, lone, he, nx, ny, nz, sin_ti, cos_ti, r, dr, dy, dx, dd
-    real(dp) :: p(3), lat, lon, h, hs, hprev, rprev, ra, rb, ga, gb, rc, gc, wold, rout
+    real(dp) :: p(3), lat, lon, h, hs, hprev, rprev, ra, rb, ga, gb, rc, gc, wold, rout, rfirst
     logical :: hit_e, found, exact, nda, ndc
     integer :: code, k, it, side
     res%nsteps = 0
@@ -344,6 +344,7 @@ contains
     ! of km (a MISS for rays 1e-7 rad off nadir, a hit 62 km underground: a review) [note 8]
     if (sin_ti > 0.0_dp) dr = min(dr, (dsm%hmax - dsm%hmin + dd) / sin_ti)
     ! ---- steps 2-5
+    rfirst = r
     rprev = r
     hprev = huge(1.0_dp)
     rout = -1.0_dp
@@ -392,13 +393,25 @@ contains
     ! when two iterations did not halve the bracket; stops at rb - ra <= refine_tol.
     ra = rprev
     rb = r
+    if (exact) call gap(dsm, s, l, rb, gb, ndc)             ! (else known from the step's confirmation)
+    call gap(dsm, s, l, ra, ga, nda)
+    res%nsteps = res%nsteps + merge(2, 1, exact)
+    ! eq. 2 may have put the step before at or above the surface where the exact conversion puts
+    ! it below (its h = p / cos(phi) - N amplifies rounding near a pole: a fuzz case 8.6 m from
+    ! Mars's pole was a hit 3.5e-6 m below flat ground, the crossing a step, 2.5e-6 m, back): the
+    ! crossing then lies before ra, so step back, exactly, until above (at most the steps taken;
+    ! rfirst, where h = H_max, is never below) [note 10]
+    do while (.not. (ga > 0.0_dp) .and. ra > rfirst)
+      rb = ra
+      gb = ga
+      ra = max(ra - dr, rfirst)
+      call gap(dsm, s, l, ra, ga, nda)
+      res%nsteps = res%nsteps + 1
+    end do
     if (rb - ra <= refine_tol) then
       call set_hit(dsm, s, l, rb, ray_hit, res)
       return
     end if
-    call gap(dsm, s, l, ra, ga, nda)
-    if (exact) call gap(dsm, s, l, rb, gb, ndc)             ! (else known from the step's confirmation)
-    res%nsteps = res%nsteps + merge(2, 1, exact)
     side = 0
     wold = 2.0_dp * (rb - ra)
     do it = 1, 200

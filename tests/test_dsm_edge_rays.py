@@ -548,3 +548,93 @@ def test_frame_camera_in_a_walls_plane_answers_on_one_side_or_the_other():
             d = res.distance[j]
             assert r_tall - 1e-6 <= d <= r_low + 1e-6, (who, k, d, r_tall, r_low)
             assert roofs[0] - 1e-6 <= res.height[j] <= roofs[1] + 1e-6, (who, k)
+
+
+@pytest.mark.parametrize("along", ["row", "column"])
+def test_nadir_ray_exactly_along_an_interior_node_line_beside_a_no_data_node(along):
+    """A bilinear grid of 0.5 x 1 m cells straddling the equator (row) or the prime meridian
+    (column), with a node line exactly at latitude 0 (longitude 0), and a nadir ray from 800 km in
+    that plane: every point of it is on the node line to the bit. The lookup there takes the cell
+    on one side (the one `int(v)` names), whose nodes have data; the row (column) of nodes on the
+    other side has a no-data node beside the ray. Every segment's box took in that node, and
+    point_class gives no cell on a node line, so the chord rule never applied: STEP_LIMIT after
+    100,216 segments, where the following hits (the simulation's fuzz family, seed 7301). Now the
+    exact mode hits where h = H, with h = 800 km - r along this ray (closed form at the equator
+    or on the prime meridian's nadir)."""
+    a, f = 6378137.0, 1.0 / 298.257223563
+    d_lat, d_lon = 4.491576420597607e-06, 8.983152841195214e-06      # the fuzz case's grid
+    rng = np.random.default_rng(7301)
+    h = 120.0 + rng.uniform(-0.3, 0.3, (7, 24))
+    if along == "row":
+        lat0, lon0 = -3.0 * d_lat, -95.23206774270867                # node row 3 at latitude 0
+        h[2, 11] = np.nan                                             # beside the ray's cell (3, 11)
+        lat_t, lon_t = 0.0, -95.231964436451                          # u = 11.4999999997
+    else:
+        h = h.T.copy()                                                # 24 rows, 7 columns
+        lat0, lon0 = 40.0 - 11.5 * d_lat, -3.0 * d_lon                # node column 3 at longitude 0
+        h[11, 2] = np.nan
+        lat_t, lon_t = 40.0, 0.0
+    dsm = GeodeticDSM.from_array(h, lat0, lon0, d_lat, d_lon, interpolation="bilinear", a=a, f=f)
+    alt = 800e3
+    s = geodetic_to_ecef(lat_t, lon_t, alt, a, f)
+    n = s - geodetic_to_ecef(lat_t, lon_t, 0.0, a, f)
+    l = -n / np.linalg.norm(n)
+    if along == "row":
+        s[2], l[2] = 0.0, 0.0                                         # in the equator's plane, to the bit
+    else:
+        s[1], l[1] = 0.0, 0.0                                         # in the prime meridian's plane
+    la, lo, _ = pi.ecef_to_geodetic(s + 1000.0 * l, a, f)
+    if along == "row":
+        assert la == 0.0
+    else:
+        assert lo == 0.0
+    H = float(dsm.height(la, lo))
+    res = pi.intersect(dsm, s, l, method="exact")
+    assert res.nsteps[0] < MAX_STEPS, res.nsteps[0]
+    fol = pi.intersect(dsm, s, l, method="following")
+    if np.isfinite(H):
+        # the lookup takes the cell with data: a hit where the ray reaches H
+        assert res.status[0] == DSMStatus.HIT, DSMStatus(res.status[0]).name
+        la_h, lo_h, h_h = pi.ecef_to_geodetic(res.p[0], a, f)
+        assert abs(h_h - dsm.height(la_h, lo_h)) < 1e-6
+        assert fol.status[0] == DSMStatus.HIT and abs(res.distance[0] - fol.distance[0]) < 0.05
+        # along this ray h = alt - r to rounding (the normal through s), so r = alt - H
+        assert abs(res.distance[0] - (alt - H)) < 1e-6, res.distance[0] - (alt - H)
+    else:
+        # the lookup rounds into the cell with the no-data node: no data where the ray is low
+        assert res.status[0] == DSMStatus.NO_DATA, DSMStatus(res.status[0]).name
+
+
+@pytest.mark.parametrize("lat_row, dm", [(48.1923, -1), (-69.832, 1), (43.2381, -1), (-57.9844, -1)])
+def test_nadir_ray_on_a_node_column_flickering_across_a_node_row_keeps_its_no_data(lat_row, dm):
+    """A review of the node-line rule above (2026-12-03): a nadir ray in the prime meridian's plane
+    (on node column 8 of a bilinear grid of 30 m cells, to the bit) at a latitude on node row 16,
+    which its points' computed latitudes cross with the last bit; one no-data node in the row beside.
+    The lookup puts ~0.1 % of the ray's low points over the no-data cell, from ~200 m along it. A
+    first form of the rule took both ends in the cell of their own row and passed over those
+    points: HIT at 300 m (100 m late) or NO_DATA up to 100 m late. The rule now applies only where
+    each end is exactly on a node line or off it by more than the rounding allowance, and these rays
+    end NO_DATA at a point the lookup calls no data, no later than a 0.5 mm scan's first such point
+    (the review's reproducer, /tmp/review_nl/repro.py)."""
+    cell = 30.0
+    dlat = cell / 110574.0
+    dlon = round(cell / (111320.0 * np.cos(np.radians(lat_row))), 9)
+    h = np.zeros((33, 17))
+    h[16 + dm, 9] = np.nan
+    lat_first = lat_row + 16 * dlat
+    dsm = GeodeticDSM.from_array(h, lat_first, -8 * dlon, -dlat, dlon, hmax=100.0)
+    lat_m = lat_first - 16 * dlat
+    s = np.asarray(geodetic_to_ecef(lat_m, 0.0, 300.0))
+    s[1] = 0.0
+    phi = np.radians(lat_m)
+    l = -np.array([np.cos(phi), 0.0, np.sin(phi)])
+    res = pi.intersect(dsm, s, l, method="exact")
+    assert res.status[0] == DSMStatus.NO_DATA, DSMStatus(res.status[0]).name
+    ev = res.event_distance[0]
+    la, lo, hh = pi.ecef_to_geodetic(res.event_p[0], dsm.a, dsm.f)
+    assert np.isnan(dsm.height(la, lo)) and hh <= dsm.hmax
+    r = np.linspace(200.0, 300.0, 200_001)
+    la, lo, hh = pi.ecef_to_geodetic(s[None] + r[:, None] * l[None], dsm.a, dsm.f)
+    low_nd = np.isnan(dsm.height(la, lo)) & (hh <= dsm.hmax)
+    assert low_nd.any()
+    assert ev <= r[np.argmax(low_nd)] + 1e-6, (ev, r[np.argmax(low_nd)])

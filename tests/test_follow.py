@@ -546,3 +546,32 @@ def test_following_steps_confirmed_near_a_pole():
     assert fo.status[0] == ex.status[0] == DSMStatus.HIT
     assert abs(fo.height[0] - fo.surface_height[0]) < 2e-6
     assert abs(fo.distance[0] - ex.distance[0]) < 2e-6
+
+
+def test_following_brackets_a_crossing_that_eq2_stepped_over_near_a_pole():
+    """The geodetic fuzz family (seed 7302): three nadir-ish rays 8.6 m from Mars's north pole over a
+    0.5 m "tower" grid (heights 0 and 1 m) in a narrow wedge of longitude. Near the pole eq. 2 (the
+    steps' conversion) is off by more than the steps there (the parallel's cells, and so D, are
+    2.5e-6 m wide), so a step it called above the ground was already below it; the refinement
+    bracketed after it and ray 2 came back 3.45e-6 m below flat ground (notes 9-10). Each ray's
+    following hit must lie on the surface (tests' geodesy) and agree with the exact mode's first
+    entry to the refinement's 1e-6 m."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from fuzzing import bulk
+    from fuzzing.geo import make_dsm
+    from references.geodesy import ecef_to_geodetic_rad
+
+    case = bulk.gen_case(7302, 384, 5, bulk.MIX_GEO)
+    dsm = make_dsm(case["dsm"])
+    s = np.asarray(case["s"], dtype=float)
+    for l in np.asarray(case["l"], dtype=float):
+        fol = pi.intersect(dsm, s, l, method="following")
+        ex = pi.intersect(dsm, s, l, method="exact")
+        assert fol.status[0] == ex.status[0] == DSMStatus.HIT
+        assert abs(fol.distance[0] - ex.distance[0]) <= 1e-6, fol.distance[0] - ex.distance[0]
+        p = fol.p[0]
+        _, _, _, h = ecef_to_geodetic_rad(p[:1], p[1:2], p[2:], dsm.a, dsm.f)
+        assert abs(float(h[0]) - fol.surface_height[0]) <= 1e-6, (float(h[0]), fol.surface_height[0])

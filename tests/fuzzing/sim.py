@@ -1218,7 +1218,9 @@ def op_simulate(case, tmp):
         ovv = ov[valid]
         iv = img_px[valid]
         vals = np.asarray(ortho.values, dtype=float).reshape(-1, bands)
-        vmin, vmax = np.nanmin(vals, axis=0), np.nanmax(vals, axis=0)
+        with warnings.catch_warnings():                  # an ortho band with no value at all: NaN (seed 7301)
+            warnings.simplefilter("ignore", RuntimeWarning)
+            vmin, vmax = np.nanmin(vals, axis=0), np.nanmax(vals, axis=0)
         vrange = np.where(np.isfinite(vmax - vmin), vmax - vmin, 0.0)
         plain = ((sv_ != 2) | (walls == "ortho")) & ~near
         if (plain & (ovv != has)).any():
