@@ -52,6 +52,8 @@ def test_ortho_rgb_nodata_and_private_copy():
     (dict(values=np.zeros(4)), "values"), (dict(values=np.zeros((1, 5))), "values"),
     (dict(values=np.array([["a", "b"], ["c", "d"]])), "values"), (dict(dlat=0.0), "dlat"),
     (dict(dlon=-1.0), "dlon"), (dict(lat_first=95.0), "lat"), (dict(lat_first=float("nan")), "lat_first"),
+    # rasterio's band-first layout: once taken as 3 rows of 48-band pixels, the image nearly all fill
+    (dict(values=np.zeros((3, 48, 48), dtype=np.uint8)), "band-first"),
 ])
 def test_ortho_bad_input(kw, match):
     args = dict(values=np.zeros((3, 3)), lat_first=0.0, lon_first=0.0, dlat=-1.0, dlon=1.0)

@@ -21,6 +21,7 @@ import re
 import shutil
 import sys
 import time
+import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -269,6 +270,8 @@ def _run_dsm(args) -> int:
     _require("xarray", "xarray", "run (NetCDF output)")
     _require("h5netcdf", "xarray", "run (NetCDF output)")
     dsm = GeodeticDSM.read(args.dem, interpolation=args.interpolation)
+    if getattr(dsm, "file_bands", 1) > 1:
+        raise CLIError(f"{args.dem}: the file has {dsm.file_bands} bands; a DSM has one band of heights")
     s, l, lines = _read_rays(Path(args.rays))
     method = args.method or "following"
     res = intersect_in_chunks(dsm, s, l, where=(args.rays, lines), method=method, threads=args.threads)
@@ -558,7 +561,8 @@ def _add_footprint_parser(sub) -> None:
     g.add_argument("--color", choices=("solid_angle", "emission"), default="solid_angle", help="map colouring")
     g.add_argument("--threads", type=int, default=0, help="OpenMP threads (default 0: all cores)")
     g.add_argument("--chunk", type=int, default=50, help="spectra per call (progress is shown between chunks)")
-    g.add_argument("--out", default="footprint-output", help="results go to a new run-NNN folder here")
+    g.add_argument("--out", default="footprint-output",
+                   help="results go to a new run-NNN folder here (default: footprint-output)")
     g.set_defaults(func=_footprint)
 # --- end footprint ------------------------------------------------------------------------------
 
@@ -570,10 +574,15 @@ def _sensor_from_args(args, dsm, scene):
     from .sensors import FrameCamera, Pushbroom
     from .synthetic_dsm import oblique_pushbroom
 
+    _check_sensor_options(args)
     if args.geometry:
         path = Path(args.geometry)
         if not path.is_file():
             raise CLIError(f"--geometry {path}: no such file")
+        with open(path, "rb") as fh:
+            magic = fh.read(4)
+        if magic != b"PK\x03\x04":                      # an .npz is a zip archive
+            raise CLIError(f"--geometry {path}: not an .npz file (np.savez writes one)")
         try:
             with np.load(path, allow_pickle=False) as z:
                 d = {k: z[k] for k in z.files}
@@ -582,19 +591,34 @@ def _sensor_from_args(args, dsm, scene):
         if "l" not in d or ("s" not in d and "position" not in d):
             raise CLIError(f"--geometry {path}: needs arrays s (nlines, 3) and l (nlines, npixels, 3) "
                            "for a pushbroom, or position (3,) and l (nrows, ncols, 3) for a frame camera")
+        if "s" in d and "position" in d:
+            raise CLIError(f"--geometry {path}: holds both s (a pushbroom) and position (a frame camera); "
+                           "keep one")
         try:
-            return Pushbroom(d["s"], d["l"]) if "s" in d else FrameCamera(d["position"], d["l"])
+            sensor = Pushbroom(d["s"], d["l"]) if "s" in d else FrameCamera(d["position"], d["l"])
         except (TypeError, ValueError) as exc:
             raise CLIError(f"--geometry {path}: {exc}") from None
+        # positions in km (or any unit but metres) put the sensor inside the body: say so here, with
+        # the file's name, not later as a ray's error
+        pos = np.asarray(d["s"] if "s" in d else d["position"], dtype=float).reshape(-1, 3)
+        r = np.linalg.norm(pos, axis=1)
+        b = dsm.a * (1.0 - dsm.f)
+        if np.any(r < b):
+            k = int(np.argmin(r))
+            raise CLIError(f"--geometry {path}: {'s' if 's' in d else 'position'}[{k}] is {r[k]:.6g} m from the "
+                           f"body's centre, inside the ellipsoid (b = {b:.6g} m): positions are ECR metres")
+        return sensor
     if args.orbit:
         return _orbit_sensor(args, dsm)
-    zen, az = args.oblique
+    zen, az = args.oblique if args.oblique is not None else _OBLIQUE_DEFAULT
     if not 0 <= zen < 80:
         raise CLIError(f"--oblique: zenith {zen} outside [0, 80) degrees")
     grid = scene if scene is not None else dict(heights=dsm.heights, lat_first=dsm.lat_first,
                                                 lon_first=dsm.lon_first, dlat=dsm.dlat, dlon=dsm.dlon,
                                                 a=dsm.a, f=dsm.f)
     margin = args.margin if args.margin is not None else (grid["heights"].shape[0] // 10 if scene else 0)
+    if args.step is None:
+        args.step = 1.0
     if not args.step > 0:
         raise CLIError(f"--step must be positive, got {args.step}")
     if margin < 0:
@@ -605,6 +629,8 @@ def _sensor_from_args(args, dsm, scene):
     if npix > _SIM_MAX_PIXELS:
         raise CLIError(f"--step {args.step:g} makes an image of {npix:.3g} pixels over the {nr} x {nc} DSM "
                        f"(at most {_SIM_MAX_PIXELS:,}; use a larger --step)")
+    if args.altitude is None:
+        args.altitude = _ALTITUDE_DEFAULT
     if not (math.isfinite(args.altitude) and 0 < args.altitude <= 1e15 * grid.get("a", 6378137.0)):
         # inf reached the sensor as "s[0] has NaN" (a review)
         raise CLIError(f"--altitude must be a finite positive height in metres, got {args.altitude}")
@@ -617,6 +643,9 @@ def _orbit_sensor(args, dsm):
 
     if args.target is None:
         raise CLIError("--orbit needs --target LAT,LON (the point the centre pixel looks at)")
+    for name, value in _ORBIT_DEFAULTS.items():
+        if getattr(args, name) is None:
+            setattr(args, name, value)
     lat, lon = args.target
     h = float(dsm.height(lat, lon))
     if not np.isfinite(h):
@@ -634,6 +663,39 @@ def _orbit_sensor(args, dsm):
                                 direction="descending" if args.descending else "ascending",
                                 target=(lat, lon, h), nlines=args.lines, npixels=args.pixels, ifov=args.ifov,
                                 roll=args.roll, pitch=args.pitch, yaw=args.yaw, line_period=period)
+
+
+#: defaults of the sensor options (None in the parser, so that options given to a sensor that
+#: does not use them can be refused: a newcomer's --roll without --orbit was silently ignored)
+_OBLIQUE_DEFAULT = (9.0, 90.0)
+_ALTITUDE_DEFAULT = 685e3
+_ORBIT_DEFAULTS = dict(inclination=98.0, lines=1024, pixels=1024, ifov=8.4e-5, roll=0.0, pitch=0.0, yaw=0.0,
+                       altitude=_ALTITUDE_DEFAULT)
+_ORBIT_ONLY = ("target", "inclination", "descending", "lines", "pixels", "ifov", "line_period", "roll", "pitch",
+               "yaw")
+_OBLIQUE_ONLY = ("oblique", "step", "margin")
+
+
+def _given(args, names) -> list:
+    """The options among ``names`` (attribute names) given on the command line, as --flags."""
+    return ["--" + n.replace("_", "-") for n in names if getattr(args, n) not in (None, False)]
+
+
+def _check_sensor_options(args) -> None:
+    """Refuse sensor options that the chosen sensor would ignore."""
+    if args.geometry:
+        extra = _given(args, ("orbit", "altitude") + _ORBIT_ONLY + _OBLIQUE_ONLY)
+        if extra:
+            raise CLIError(f"--geometry takes the whole sensor from its file: {', '.join(extra)} would be ignored")
+    elif args.orbit:
+        extra = _given(args, _OBLIQUE_ONLY)
+        if extra:
+            raise CLIError(f"--orbit: {', '.join(extra)} belong to --oblique runs and would be ignored")
+    else:
+        extra = _given(args, _ORBIT_ONLY)
+        if extra:
+            raise CLIError(f"{', '.join(extra)}: need --orbit (without it the sensor is --oblique's pushbroom, "
+                           "which would ignore them)")
 
 
 def _pair(text: str) -> tuple[float, float]:
@@ -660,10 +722,15 @@ def _simulate(args) -> int:
     if args.dsm is None:
         if args.ortho is not None or args.geometry is not None:
             raise CLIError("--ortho and --geometry need --dsm (without --dsm the built-in paper scene is used)")
+        extra = _given(args, ("orbit", "altitude", "step", "margin") + _ORBIT_ONLY)
+        if extra:
+            raise CLIError(f"{', '.join(extra)}: need --dsm (the built-in paper scene takes only --oblique's "
+                           "zenith and --size)")
         if not 128 <= args.size <= 8192:
             raise CLIError(f"--size must be in [128, 8192] metres, got {args.size}")
         with _run_dir(Path(args.out)) as out:
-            exp = paper_experiment(size=args.size, methods=("exact", "iterative"), zenith=args.oblique[0],
+            zenith = (args.oblique or _OBLIQUE_DEFAULT)[0]
+            exp = paper_experiment(size=args.size, methods=("exact", "iterative"), zenith=zenith,
                                    threads=args.threads, progress=not args.quiet)
             counts = fig4(exp, out / "fig4.png")
             written = [out / "fig4.png"]
@@ -684,11 +751,27 @@ def _simulate(args) -> int:
     dsm = GeodeticDSM.read(args.dsm, interpolation=args.interpolation)
     ortho = OrthoImage.read(args.ortho)
     sensor = _sensor_from_args(args, dsm, None)
+    if getattr(dsm, "resampling", None):
+        # the warp's grid is rasterio's choice: say what it became (a 1 m UTM grid became 1.29 x 0.85 m cells)
+        dy, dx = abs(math.radians(dsm.dlat)) * dsm.a, math.radians(dsm.dlon) * dsm.a * math.cos(
+            math.radians(dsm.lat_first + 0.5 * (dsm.nrows - 1) * dsm.dlat))
+        print(f"simulate: note: --dsm {args.dsm} ({dsm.crs}) warped ({dsm.resampling}) to a geodetic grid of "
+              f"{dsm.nrows} x {dsm.ncols} cells of {dy:.3g} m x {dx:.3g} m, read {dsm.interpolation!r}",
+              file=sys.stderr)
+    if getattr(dsm, "file_bands", 1) > 1:
+        # an image given as the DSM ran with its first band as heights (a newcomer's walk-through)
+        raise CLIError(f"--dsm {args.dsm}: the file has {dsm.file_bands} bands; a DSM has one band of heights "
+                       "(was the ortho-image given as --dsm?)")
     with _run_dir(Path(args.out)) as out:
-        sim = simulate_image(dsm, ortho, sensor, method=args.method, walls=args.walls, shading=args.shading,
-                             sun=args.sun, ambient=args.ambient, fill=args.fill, occlusion=not args.no_occlusion,
-                             threads=args.threads, block_lines=args.block_lines, progress=not args.quiet,
-                             out=out / "backplanes" if args.memmap else None)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            sim = simulate_image(dsm, ortho, sensor, method=args.method, walls=args.walls, shading=args.shading,
+                                 sun=args.sun, ambient=args.ambient, fill=args.fill,
+                                 occlusion=not args.no_occlusion, threads=args.threads,
+                                 block_lines=args.block_lines, progress=not args.quiet,
+                                 out=out / "backplanes" if args.memmap else None)
+        for w in caught:                        # one line each, naming the file (not a Python warning)
+            print(f"simulate: note: --ortho {args.ortho}: {w.message}", file=sys.stderr)
         written = write_outputs(sim, out, "simulated")
         if args.compare_iterative:
             it = simulate_image(dsm, ortho, sensor, method="iterative", occlusion=False, threads=args.threads,
@@ -698,7 +781,8 @@ def _simulate(args) -> int:
                   f"{int(wrong_surface(it, sim).sum()):,} on the wrong surface")
     c = sim.counts()
     print(f"simulate: {sim.shape[0]} x {sim.shape[1]} pixels of {args.ortho} on {args.dsm} ({args.method}), "
-          f"{time.perf_counter() - t0:.1f} s, {sim.meta['pixels_per_second']:,.0f} px/s\n  "
+          f"{time.perf_counter() - t0:.1f} s in all (the simulation itself {sim.meta['seconds_simulation']:.2f} s, "
+          f"{sim.meta['pixels_per_second']:,.0f} px/s; reading, occlusion and writing the rest)\n  "
           + ", ".join(f"{k} {v:,}" for k, v in c.items()) + f"\n  wrote {', '.join(str(p) for p in written)}")
     return 0
 
@@ -722,34 +806,42 @@ def _add_simulate_parser(sub) -> None:
                     "     or position (3,) and l (nrows, ncols, 3) for a frame camera)\n\n"
                     "GeoTIFFs in a geographic CRS are read as they are; projected ones are warped to a\n"
                     "geodetic grid. DSM heights must be above WGS-84 (add the geoid undulation if not).\n"
+                    "Image orientation: --oblique lines are the DSM's rows in its stored order and pixels its\n"
+                    "columns west to east (a north-up DSM gives a north-up image); --orbit and --geometry\n"
+                    "lines are in acquisition order and pixels in the sensor's order (--orbit: from the left\n"
+                    "of the flight direction, so an ascending pass's image has south at the top).\n"
                     "Outputs in a new run-NNN folder: simulated.png (the image), simulated_surface.png,\n"
                     "simulated_occlusion.png, simulated.tif (image + backplanes in sensor geometry),\n"
                     "simulated.nc (NetCDF of image, lat, lon, height, distance, incidence, surface, masks).")
     s.add_argument("--dsm", help="DSM GeoTIFF or .npz (heights above WGS-84, metres)")
     s.add_argument("--ortho", help="ortho-image GeoTIFF or .npz (one band or RGB)")
     s.add_argument("--geometry", help=".npz with the sensor's rays (see above)")
-    s.add_argument("--oblique", type=_pair, default=(9.0, 90.0), metavar="ZENITH,AZIMUTH",
+    s.add_argument("--oblique", type=_pair, default=None, metavar="ZENITH,AZIMUTH",
                    help="pushbroom over the DSM grid viewing at ZENITH deg from AZIMUTH (deg from north; "
-                        "default 9,90: from the East)")
+                        "default 9,90: from the East); the sensor when neither --orbit nor --geometry is given")
     s.add_argument("--orbit", action="store_true", help="built-in Keplerian orbit (with --target, --altitude, ...)")
     s.add_argument("--target", type=_pair, metavar="LAT,LON", help="--orbit: where the centre pixel looks")
-    s.add_argument("--altitude", type=float, default=685e3, help="sensor altitude in m (default 685 km)")
-    s.add_argument("--inclination", type=float, default=98.0, help="--orbit: inclination, deg (default 98)")
+    s.add_argument("--altitude", type=float, default=None, help="sensor altitude in m (default 685 km)")
+    s.add_argument("--inclination", type=float, default=None, help="--orbit: inclination, deg (default 98)")
     s.add_argument("--descending", action="store_true", help="--orbit: descending pass (default ascending)")
-    s.add_argument("--lines", type=int, default=1024, help="--orbit: image lines")
-    s.add_argument("--pixels", type=int, default=1024, help="--orbit: pixels per line")
-    s.add_argument("--ifov", type=float, default=8.4e-5,
+    s.add_argument("--lines", type=int, default=None, help="--orbit: image lines (default 1024)")
+    s.add_argument("--pixels", type=int, default=None, help="--orbit: pixels per line (default 1024)")
+    s.add_argument("--ifov", type=float, default=None,
                    help="--orbit: instantaneous field of view per pixel, degrees (default 8.4e-5: 1 m at 685 km)")
     s.add_argument("--line-period", type=float,
                    help="--orbit: seconds per line (default: square pixels, the nadir GSD over the ground speed)")
-    s.add_argument("--roll", type=float, default=0.0,
-                   help="--orbit: roll, deg (> 0 looks left of the flight direction: west when north-bound)")
-    s.add_argument("--pitch", type=float, default=0.0, help="--orbit: pitch, deg")
-    s.add_argument("--yaw", type=float, default=0.0, help="--orbit: yaw, deg")
-    s.add_argument("--step", type=float, default=1.0, help="--oblique: DSM cells per pixel and line (default 1)")
+    s.add_argument("--roll", type=float, default=None,
+                   help="--orbit: roll, deg (> 0 looks left of the flight direction: west when north-bound; "
+                        "default 0)")
+    s.add_argument("--pitch", type=float, default=None, help="--orbit: pitch, deg (default 0)")
+    s.add_argument("--yaw", type=float, default=None, help="--orbit: yaw, deg (default 0)")
+    s.add_argument("--step", type=float, default=None, help="--oblique: DSM cells per pixel and line (default 1)")
     s.add_argument("--margin", type=int, help="--oblique: DSM cells left out on each side")
     s.add_argument("--method", choices=("exact", "following", "iterative"), default="exact")
-    s.add_argument("--interpolation", choices=("bilinear", "nearest"), help="DSM interpolation (default: the reader's)")
+    s.add_argument("--interpolation", choices=("bilinear", "nearest"),
+                   help="DSM interpolation (default: the reader's: bilinear for a geographic GeoTIFF, nearest for "
+                        "a projected one, warped nearest); nearest for buildings: flat roofs, vertical walls "
+                        "(bilinear makes each wall a one-cell ramp)")
     s.add_argument("--walls", choices=("interpolate", "ortho"), default="interpolate")
     s.add_argument("--shading", choices=("none", "lambert"), default="none")
     s.add_argument("--sun", type=_pair, metavar="AZIMUTH,ELEVATION", help="Sun direction for --shading lambert, deg")
@@ -763,7 +855,8 @@ def _add_simulate_parser(sub) -> None:
     s.add_argument("--threads", type=int, help="OpenMP threads (default: all cores)")
     s.add_argument("--size", type=int, default=640, help="without --dsm: the paper scene's size in metres")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
-    s.add_argument("--out", default="simulate-output", help="results go to a new run-NNN folder here")
+    s.add_argument("--out", default="simulate-output",
+                   help="results go to a new run-NNN folder here (default: simulate-output)")
     s.set_defaults(func=_simulate)
 # --- end simulate -------------------------------------------------------------------------------
 
@@ -780,7 +873,8 @@ def _parser() -> argparse.ArgumentParser:
     r = sub.add_parser("run", help="intersect the rays of a text file (sx sy sz lx ly lz per line) with a DEM")
     r.add_argument("dem", help="DEM as NAME, NAME.hdr or NAME.dem; or a geodetic DSM (.tif GeoTIFF, .npz)")
     r.add_argument("rays", help="text file, one ray per line: sx sy sz lx ly lz")
-    r.add_argument("--out", default="planet-intersect-output", help="results go to a new run-NNN folder here")
+    r.add_argument("--out", default="planet-intersect-output",
+                   help="results go to a new run-NNN folder here (default: planet-intersect-output)")
     r.add_argument("--step-mode", type=int, choices=(0, 1), default=1)
     r.add_argument("--dem-read-mode", type=int, choices=(0, 1), default=0)
     r.add_argument("--tangent", choices=("exact", "paper"), default="exact",
@@ -797,7 +891,8 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("which", choices=("olympus", "limb"))
     e.add_argument("--dem", help="a Mars DEM NAME.hdr in km (default: the MOLA grid in $PI_SHARED_DATA or ../shared/data)")
     e.add_argument("--mola", help="a MEGDR radius grid (megr*.img style) to use instead")
-    e.add_argument("--out", default="examples-output", help="results go to a new run-NNN folder here")
+    e.add_argument("--out", default="examples-output",
+                   help="results go to a new run-NNN folder here (default: examples-output)")
     e.set_defaults(func=_examples)
     m = sub.add_parser("import-mola", help="convert MOLA MEGDR grids to a .hdr/.dem DEM (km)")
     m.add_argument("out", help="output NAME (writes NAME.hdr and NAME.dem)")

@@ -237,6 +237,8 @@ class GeodeticDSM:
         self._nodata = nodata
         self._pyramid = None
         self.path = None
+        #: bands in the file read (1 for arrays and .npz); the CLI refuses a multi-band DSM file
+        self.file_bands = 1
         self.resampling = None
         self.crs = None
         return self
@@ -255,6 +257,7 @@ class GeodeticDSM:
     nodata = property(lambda self: self._nodata)
     nrows = property(lambda self: self._h.shape[0])
     ncols = property(lambda self: self._h.shape[1])
+    shape = property(lambda self: self._h.shape, doc="(nrows, ncols), as an OrthoImage's")
 
     @property
     def lats(self) -> np.ndarray:
@@ -416,6 +419,7 @@ class GeodeticDSM:
             if not (1 <= band <= src.count):
                 raise DSMError(f"DSM file {path}: band {band} does not exist (the file has {src.count})")
             nd = _file_nodata(nodata, src.nodata)
+            file_bands = int(src.count)
             raw = src.read(band)                          # once: the branches below convert it
             if nd is None and raw.dtype == np.int16 and int(raw.min()) == -32768:
                 # the usual void of int16 DEMs (SRTM): read as 32.8 km pits (a review); the planetary
@@ -460,6 +464,7 @@ class GeodeticDSM:
         dsm.path = path
         dsm.resampling = warped
         dsm.crs = str(crs)
+        dsm.file_bands = file_bands
         return dsm
 
 

@@ -194,11 +194,26 @@ def _check_mode(value, name: str) -> int:
 def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
               tangent: str = "exact", threads: int | None = None, method: str | None = None,
               io: str = "records", **dsm_options):
-    """Intersect lines of sight with a DEM (the paper's zcalc_planet_intersect).
+    """Intersect lines of sight with a planetary DEM (Teanby's zcalc_planet_intersect)
+    or a geodetic DSM (Shin & Park's ray following).
+
+    The one entry point of both systems. For a :class:`GeodeticDSM` (heights
+    above an ellipsoid on a geodetic grid) the methods are "following" (the
+    default: the paper's ray following), "exact" (the first entry into the
+    interpolated surface, to 1e-6 m along the ray) and "iterative" (the
+    conventional iterative ray tracing the paper criticises); ``s`` and ``l``
+    are ECR metres (the DSM's units), ``threads`` as below, keyword
+    ``outside="ellipsoid"`` falls back to the bare ellipsoid where a ray
+    leaves the DSM; ``step_mode``, ``dem_read_mode``, ``tangent`` and ``io``
+    are the DEM's only (refused). The result is then a
+    :class:`~planet_intersect.dsm.DSMResult` (lat, lon in degrees, lon in
+    [-180, 180); height above the ellipsoid; incidence in degrees from the
+    ellipsoid normal; status codes in docs/status-codes.md). The parameters
+    below are those of a planetary DEM.
 
     Parameters
     ----------
-    dem : DEM
+    dem : DEM or GeodeticDSM
         The surface (see :class:`DEM`); lengths in its units.
     s : array (3,) or (N, 3)
         Spacecraft position(s), planet-fixed Cartesian (x to lat 0 lon 0, z north).
@@ -217,7 +232,7 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
     threads : int, optional
         OpenMP threads for the ray loop; None or 0: all cores. Results are
         bit-identical for any count.
-    method : "stepping" or "exact"
+    method : "stepping" or "exact" (a DEM); "following", "exact" or "iterative" (a DSM)
         "stepping": the paper's algorithm (eqs. 23-41). "exact": the first entry
         of the ray into the same bilinear surface, found by subdividing the ray
         against a max-pyramid of the DEM (built on first use and kept with the

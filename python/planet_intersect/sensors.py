@@ -848,6 +848,13 @@ class FrameCamera(Sensor):
     """
 
     def __init__(self, position, l):
+        try:
+            shp = np.shape(position)
+        except (TypeError, ValueError):                    # ragged: _array names it
+            shp = None
+        if shp is not None and len(shp) == 1 and shp != (3,):
+            # (reshaped to (1, n) it was reported as "expected shape (n, 3), got (1, 2)": a review)
+            raise ValueError(f"position: expected shape (3,), got {shp}")
         self.position = _array(np.reshape(position, (1, -1)) if np.ndim(position) == 1 else position,
                                "position", (3,), 2)[0]
         self._l = _array(l, "l", (3,), 3)

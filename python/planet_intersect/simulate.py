@@ -101,7 +101,9 @@ class OrthoImage:
         ----------
         values : array (nrows, ncols) or (nrows, ncols, bands)
             Brightness (any real dtype; kept as a private read-only float64 copy,
-            the input dtype remembered for PNG scaling).
+            the input dtype remembered for PNG scaling). Bands last: an array of
+            at most 4 rows and more than 4 "bands" is refused as band-first
+            (rasterio's ``read()`` layout; ``np.moveaxis(values, 0, -1)`` turns it).
         lat_first, lon_first : float
             Geodetic latitude and east longitude of pixel (0, 0)'s centre, degrees.
         dlat, dlon : float
@@ -119,6 +121,12 @@ class OrthoImage:
         if arr.ndim not in (2, 3) or arr.shape[0] < 2 or arr.shape[1] < 2 or (arr.ndim == 3 and arr.shape[2] < 1):
             raise ValueError(f"values: expected (nrows, ncols) or (nrows, ncols, bands) with at least 2 x 2 pixels, "
                              f"got shape {arr.shape}")
+        if arr.ndim == 3 and arr.shape[0] <= 4 < arr.shape[2]:
+            # rasterio's read() and most image libraries' planar layouts are band-first: taken as
+            # (nrows, ncols, bands) a (3, 48, 48) RGB array became 3 rows of 48-band pixels, and the
+            # image came out nearly all fill with no error (a newcomer's walk-through)
+            raise ValueError(f"values: shape {arr.shape} looks band-first (bands, nrows, ncols), as rasterio's "
+                             f"read() returns it; give (nrows, ncols, bands), e.g. np.moveaxis(values, 0, -1)")
         lat_first = _number(lat_first, "lat_first")
         lon_first = _number(lon_first, "lon_first")
         dlat = _number(dlat, "dlat")
