@@ -418,10 +418,16 @@ def sensor_spec(r: R, dsm: dict, kind: str | None = None) -> dict:
         else:
             # sub-satellite point: a little off the scene for roll/pitch (they point back roughly)
             spec["lat"], spec["lon"] = lat_c, lon_c
+        # a pointed boresight meets the ground up to gamma of arc from the ground track (the off-nadir
+        # angle theta seen from the body's centre; 6.8 deg for 26 deg of roll from 800 km over Mars): the
+        # orbit must reach the latitude with that margin (a target at 76.02 N with 97.4 deg and 26 deg of
+        # roll was out of reach by 10 km, and from_orbit said so; seed 7304)
+        theta = math.radians(min(math.hypot(spec["roll"], spec["pitch"]), 60.0))
+        gamma = math.degrees(math.asin(min(1.0, (a + alt) / a * math.sin(theta))) - theta)
         if abs(lat_c) > 80.0:
             spec["inclination"] = 90.0                      # the orbit must reach the (geocentric) latitude
-        elif spec["inclination"] < abs(lat_c) + 2.0 or spec["inclination"] > 178.0 - abs(lat_c):
-            spec["inclination"] = r.pick([90.0, 98.0])
+        elif spec["inclination"] < abs(lat_c) + 2.0 + gamma or spec["inclination"] > 178.0 - abs(lat_c) - gamma:
+            spec["inclination"] = 90.0 if "target" in spec and gamma > 0.0 else r.pick([90.0, 98.0])
         if r.chance(0.15):
             spec["look_angles"] = sorted(r.g.uniform(-1.0, 1.0, npx) * math.degrees(ext / alt)).copy()
         if r.chance(0.1):
@@ -1018,10 +1024,23 @@ def _spoiled_call(case, dsm, ortho, sensor, kw, tmp):
             for di in (0, 1, 2):                         # (bilinear: its neighbours too)
                 for dj in (0, 1, 2):
                     ok = ok & pad[di:di + h.shape[0], dj:dj + h.shape[1]]
-            if not ok.any():
-                ok = np.isfinite(h)
-            i, j = np.argwhere(ok)[0]
-            c = _ecef(dsm.lat_first + dsm.dlat * i, dsm.lon_first + dsm.dlon * j, h[i, j] - 50.0, dsm.a, dsm.f)
+            if ok.any():
+                i, j = np.argwhere(ok)[0]
+                hc = h[i, j]
+            else:
+                # no node with data all round (a tiny grid with holes): a node where the package's own
+                # surface has data (a node beside a no-data node may have none there: a focal point under
+                # it is not inside, and simulate_image rightly took it; seed 7304)
+                ii, jj = np.nonzero(np.isfinite(h))
+                hh = dsm.height(dsm.lat_first + dsm.dlat * ii, dsm.lon_first + dsm.dlon * jj)
+                good = np.flatnonzero(np.isfinite(hh))
+                if not good.size:
+                    # every bilinear cell has a no-data node (a 5 x 2 grid with holes): no point is
+                    # inside the surface, so there is no such spoil to make; the call must then work
+                    return "no spoil"
+                k = int(good[0])
+                i, j, hc = ii[k], jj[k], hh[k]
+            c = _ecef(dsm.lat_first + dsm.dlat * i, dsm.lon_first + dsm.dlon * j, hc - 50.0, dsm.a, dsm.f)
             sensor = pi.Pushbroom(c[None, :], -np.asarray(l[:1])[None, :, :])
     else:
         kw[arg] = val
@@ -1077,8 +1096,10 @@ def op_simulate(case, tmp):
     if "spoil" in case:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)
-            _spoiled_call(case, dsm, ortho, sensor, kw, tmp)
+            got = _spoiled_call(case, dsm, ortho, sensor, kw, tmp)
         arg, val = case["spoil"]
+        if isinstance(got, str) and got == "no spoil":
+            return {"calls": 0}
         fail(f"simulate_image accepted {arg} = {val!r}")
     res, n_warn = _run_sim(dsm, ortho, sensor, kw)
     calls = 1
