@@ -38,6 +38,7 @@ def _run(args, capsys):
 
 @pytest.mark.parametrize("extra, words", [
     (["--roll", "8"], "--roll: need --orbit"),
+    (["--roll", "0"], "--roll: need --orbit"),                       # a zero is given too
     (["--lines", "30", "--pixels", "20"], "--lines, --pixels: need --orbit"),
     (["--target", "36.6,-84.2"], "--target: need --orbit"),
     (["--orbit", "--target", "36.6,-84.2", "--oblique", "30,0"], "--orbit: --oblique belong to --oblique runs"),

@@ -677,8 +677,10 @@ _OBLIQUE_ONLY = ("oblique", "step", "margin")
 
 
 def _given(args, names) -> list:
-    """The options among ``names`` (attribute names) given on the command line, as --flags."""
-    return ["--" + n.replace("_", "-") for n in names if getattr(args, n) not in (None, False)]
+    """The options among ``names`` (attribute names) given on the command line, as --flags (store_true
+    flags count when set; a value of 0 counts: ``0.0 in (None, False)`` is true in Python)."""
+    return ["--" + n.replace("_", "-") for n in names
+            if getattr(args, n) is not None and getattr(args, n) is not False]
 
 
 def _check_sensor_options(args) -> None:
