@@ -129,7 +129,7 @@ def test_read_npz(tmp_path):
         GeodeticDSM.read(bad)
     junk = tmp_path / "junk.npz"
     junk.write_bytes(b"not a zip")
-    with pytest.raises(DSMError, match="junk.npz: cannot be read"):
+    with pytest.raises(DSMError, match="junk.npz: not a .npz file"):
         GeodeticDSM.read(junk)
     with pytest.raises(FileNotFoundError, match="no such file"):
         GeodeticDSM.read(tmp_path / "missing.tif")

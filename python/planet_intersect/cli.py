@@ -74,11 +74,13 @@ def _require(module: str, extra: str, what: str) -> None:
 
 
 def write_csv(path: Path, result) -> None:
-    """Per-ray results as CSV, one row per ray, vectors split into _x/_y/_z."""
+    """Per-ray results as CSV, one row per ray, vectors split into _x/_y/_z; numbers with 17
+    significant digits, so that they read back as the same doubles (10 digits, as before, kept
+    ~1 mm of a hit point in ECR metres, coarser than the exact mode's 1e-6: a walk-through)."""
     cols = result.to_table()
     names = list(cols)
     data = np.column_stack([np.asarray(cols[k], dtype=np.float64) for k in names])
-    fmt = ["%d" if k in ("hit", "status", "nsteps") else "%.10g" for k in names]
+    fmt = ["%d" if k in ("hit", "status", "nsteps") else "%.17g" for k in names]
     np.savetxt(path, data, delimiter=",", header=",".join(names), comments="", fmt=fmt)
 
 
@@ -242,11 +244,24 @@ def intersect_in_chunks(dem, s, l, chunk: int = 200_000, where=None, **kwargs):
     return type(parts[0])(**{k: np.concatenate([getattr(p, k) for p in parts]) for k in parts[0].__dataclass_fields__})
 
 
+#: `run` options of a planetary DEM only (with their defaults) and of a geodetic DSM only
+_DEM_RUN_OPTIONS = {"step_mode": 1, "dem_read_mode": 0, "tangent": "exact", "io": "records"}
+_DSM_RUN_OPTIONS = ("interpolation", "geoid", "nodata", "band", "outside")
+
+
 def _run(args) -> int:
     from . import DEM
 
     if Path(args.dem).suffix.lower() in (".tif", ".tiff", ".npz"):    # a geodetic DSM (Shin & Park)
         return _run_dsm(args)
+    # a DSM's options with a DEM, and the other way round, are refused rather than ignored (a
+    # walk-through saw --step-mode 0 taken silently with a DSM)
+    given = [f"--{k.replace('_', '-')}" for k in _DSM_RUN_OPTIONS if getattr(args, k) is not None]
+    if given:
+        raise CLIError(f"{', '.join(given)}: for a geodetic DSM (.tif, .npz) only, not the DEM {args.dem}")
+    for k, default in _DEM_RUN_OPTIONS.items():
+        if getattr(args, k) is None:
+            setattr(args, k, default)
     _require("xarray", "xarray", "run (NetCDF output)")
     _require("h5netcdf", "xarray", "run (NetCDF output)")
     dem = DEM.read(args.dem)
@@ -267,21 +282,43 @@ def _run_dsm(args) -> int:
     """`run` on a geodetic DSM (GeoTIFF or .npz): rays in its ellipsoid's ECR frame."""
     from .dsm import DSMStatus, GeodeticDSM
 
+    given = [f"--{k.replace('_', '-')}" for k in _DEM_RUN_OPTIONS if getattr(args, k) is not None]
+    if given:
+        raise CLIError(f"{', '.join(given)}: for a planetary DEM only, not the geodetic DSM {args.dem}")
     _require("xarray", "xarray", "run (NetCDF output)")
     _require("h5netcdf", "xarray", "run (NetCDF output)")
-    dsm = GeodeticDSM.read(args.dem, interpolation=args.interpolation)
-    if getattr(dsm, "file_bands", 1) > 1:
-        raise CLIError(f"{args.dem}: the file has {dsm.file_bands} bands; a DSM has one band of heights")
+    geoid = args.geoid
+    if geoid is not None:
+        try:
+            geoid = float(geoid)
+        except ValueError:
+            if not Path(geoid).is_file():
+                raise CLIError(f"--geoid {geoid}: neither a number (metres) nor a file") from None
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        dsm = GeodeticDSM.read(args.dem, band=args.band if args.band is not None else 1, nodata=args.nodata,
+                               geoid=geoid, interpolation=args.interpolation)
+    for w in caught:                            # one line each (not a Python warning)
+        print(f"run: note: {w.message}", file=sys.stderr)
+    if getattr(dsm, "file_bands", 1) > 1 and args.band is None:
+        raise CLIError(f"{args.dem}: the file has {dsm.file_bands} bands; a DSM has one band of heights "
+                       f"(--band N reads band N)")
     s, l, lines = _read_rays(Path(args.rays))
     method = args.method or "following"
-    res = intersect_in_chunks(dsm, s, l, where=(args.rays, lines), method=method, threads=args.threads)
+    res = intersect_in_chunks(dsm, s, l, where=(args.rays, lines), method=method, threads=args.threads,
+                              outside=args.outside or "none")
     with _run_dir(Path(args.out)) as out:
         write_csv(out / "results.csv", res)
         res.to_xarray().to_netcdf(out / "results.nc", engine="h5netcdf")
         written = [out / "results.csv", out / "results.nc"]
-    print(f"{len(res)} rays ({method} over the DSM {args.dem}): {int(res.hit.sum())} hit, "
-          f"{int((res.status == DSMStatus.NO_DATA).sum())} no data, {int((res.status == DSMStatus.LEFT_DSM).sum())} "
-          f"left the DSM, {int((res.status == DSMStatus.MISS).sum())} miss; wrote {', '.join(map(str, written))}")
+    # every status counted, so that the counts add up to the rays (a walk-through missed OSCILLATION)
+    codes, counts = np.unique(res.status, return_counts=True)
+    names = {v: k.lower().replace("_", " ") for k, v in vars(DSMStatus).items() if k.isupper()}
+    parts = [f"{int(c)} {names.get(int(k), f'status {int(k)}')}" for k, c in zip(codes, counts)]
+    if res.on_ellipsoid.any():
+        parts.append(f"({int(res.on_ellipsoid.sum())} of those left the DSM given the ellipsoid point)")
+    print(f"{len(res)} rays ({method} over the DSM {args.dem}): {', '.join(parts) or 'none'}; "
+          f"wrote {', '.join(map(str, written))}")
     return 0
 
 
@@ -750,8 +787,12 @@ def _simulate(args) -> int:
         return 0
     if args.ortho is None:
         raise CLIError("--dsm needs --ortho (the ortho-image to drape)")
-    dsm = GeodeticDSM.read(args.dsm, interpolation=args.interpolation)
-    ortho = OrthoImage.read(args.ortho)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        dsm = GeodeticDSM.read(args.dsm, interpolation=args.interpolation)
+        ortho = OrthoImage.read(args.ortho)
+    for w in caught:                            # what the readers say of the files, one line each
+        print(f"simulate: note: {w.message}", file=sys.stderr)
     sensor = _sensor_from_args(args, dsm, None)
     if getattr(dsm, "resampling", None):
         # the warp's grid is rasterio's choice: say what it became (a 1 m UTM grid became 1.29 x 0.85 m cells)
@@ -877,17 +918,28 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("rays", help="text file, one ray per line: sx sy sz lx ly lz")
     r.add_argument("--out", default="planet-intersect-output",
                    help="results go to a new run-NNN folder here (default: planet-intersect-output)")
-    r.add_argument("--step-mode", type=int, choices=(0, 1), default=1)
-    r.add_argument("--dem-read-mode", type=int, choices=(0, 1), default=0)
-    r.add_argument("--tangent", choices=("exact", "paper"), default="exact",
-                   help="spheroid tangent point: true nearest point (default) or the paper's eqs. 55-58")
     r.add_argument("--method", choices=("stepping", "exact", "following", "iterative"), default=None,
                    help="DEM: stepping (default) or exact; DSM: following (default), exact or iterative")
-    r.add_argument("--interpolation", choices=("bilinear", "nearest"), default=None,
-                   help="DSM surface (default: nearest for a warped projected raster, else bilinear)")
     r.add_argument("--threads", type=int, default=0, help="OpenMP threads (default 0: all cores)")
-    r.add_argument("--io", choices=("records", "mmap"), default="records",
-                   help="with --dem-read-mode 1: one read per record (default) or a memory map")
+    dem_g = r.add_argument_group("planetary DEM only")
+    dem_g.add_argument("--step-mode", type=int, choices=(0, 1), default=None, help="default 1")
+    dem_g.add_argument("--dem-read-mode", type=int, choices=(0, 1), default=None, help="default 0")
+    dem_g.add_argument("--tangent", choices=("exact", "paper"), default=None,
+                       help="spheroid tangent point: true nearest point (default) or the paper's eqs. 55-58")
+    dem_g.add_argument("--io", choices=("records", "mmap"), default=None,
+                       help="with --dem-read-mode 1: one read per record (default) or a memory map")
+    dsm_g = r.add_argument_group("geodetic DSM only (.tif, .npz)")
+    dsm_g.add_argument("--interpolation", choices=("bilinear", "nearest"), default=None,
+                       help="DSM surface (default: nearest for a warped projected raster, else bilinear)")
+    dsm_g.add_argument("--geoid", default=None,
+                       help="geoid undulation N (metres, or a raster on the DSM's grid): heights above the "
+                            "geoid become H + N above the ellipsoid (default: heights are ellipsoidal)")
+    dsm_g.add_argument("--nodata", type=float, default=None,
+                       help="no-data value (replaces the file's tag; nan: only NaN marks no data)")
+    dsm_g.add_argument("--band", type=int, default=None, help="the band of heights (default: the only one)")
+    dsm_g.add_argument("--outside", choices=("none", "ellipsoid"), default=None,
+                       help="rays that leave the DSM without a hit: status LEFT_DSM only (default), or also "
+                            "the point on the bare ellipsoid")
     r.set_defaults(func=_run)
     e = sub.add_parser("examples", help="the paper's Mars examples: olympus (Fig. 8) or limb (Fig. 9), on MOLA")
     e.add_argument("which", choices=("olympus", "limb"))

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -63,6 +64,8 @@ def _file_nodata(nodata, file_nodata):
     """The no-data value of a raster being read: the caller's ``nodata``, else the
     file's tag, where a NaN tag (GDAL's usual) counts as none, NaN being no data
     already (GeodeticDSM.read and OrthoImage.read)."""
+    if isinstance(nodata, float) and math.isnan(nodata):
+        return None                      # nodata=NaN: only NaN marks no data (the file's tag is replaced)
     nd = nodata if nodata is not None else file_nodata
     if nodata is None and nd is not None and not math.isfinite(nd):
         return None
@@ -107,10 +110,13 @@ class GeodeticDSM:
         a, f : float
             Ellipsoid (WGS-84 by default; e.g. Mars's for areodetic heights).
         nodata : float, optional
-            Value marking no data (besides NaN).
+            Value marking no data (besides NaN; NaN itself is accepted and adds nothing).
         geoid : float, array [nrows, ncols] or path, optional
             Geoid undulation N added to heights above the geoid: ``h = H + N``;
-            a path is read with :meth:`read` and must have the same grid.
+            a path is read with :meth:`read` and must have the same grid (a
+            raster in the DSM file's own projected CRS and grid is warped as
+            the DSM is); an array is on the DSM's geodetic grid (``dsm.shape``
+            after a warp). Needed wherever there are heights.
         interpolation : "bilinear" or "nearest"
             Bilinear in (lat, lon) between pixel centres, or flat-topped cells
             with vertical walls (building DSMs).
@@ -136,6 +142,8 @@ class GeodeticDSM:
         if np.isinf(h).any():
             i, j = np.argwhere(np.isinf(h))[0]
             raise DSMError(f"heights[{i}, {j}] is infinite (use NaN or nodata for missing cells)")
+        if isinstance(nodata, (float, np.floating)) and math.isnan(nodata):
+            nodata = None                                      # NaN marks no data already
         if nodata is not None:
             nd = _number(nodata, "nodata")
             h[h == nd] = np.nan
@@ -196,10 +204,13 @@ class GeodeticDSM:
                 raise DSMError(f"geoid: not a number or array ({exc})") from None
             if n_.ndim not in (0, 2) or (n_.ndim == 2 and n_.shape != h.shape):
                 raise DSMError(f"geoid must be a scalar or an array shaped like heights {h.shape}, got {n_.shape}")
-            if not np.isfinite(n_).all():
-                bad = np.argwhere(~np.isfinite(np.broadcast_to(n_, h.shape)))[0]
-                raise DSMError(f"{geoid_name} has NaN, Inf or no-data values (first at row {bad[0]}, column "
-                               f"{bad[1]}): the undulation is needed at every cell")
+            # needed where there are heights; no-data cells may have none (a geoid raster warped
+            # with its UTM DSM has the same no-data corners: a walk-through saw it refused)
+            badg = ~np.isfinite(np.broadcast_to(n_, h.shape)) & ~np.isnan(h)
+            if badg.any():
+                bad = np.argwhere(badg)[0]
+                raise DSMError(f"{geoid_name} has NaN, Inf or no-data values where there are heights (first "
+                               f"at row {bad[0]}, column {bad[1]}): the undulation is needed at every such cell")
             with np.errstate(over="ignore"):
                 hn = h + n_
             if (np.isinf(hn) & np.isfinite(h)).any():
@@ -362,7 +373,13 @@ class GeodeticDSM:
         LiDAR DSMs...): warped to a geodetic grid of about the same resolution
         with ``resampling`` ("nearest" by default so that building edges stay
         sharp; "bilinear" also allowed), recorded in ``dsm.resampling``.
-        ``nodata`` defaults to the file's own. ``interpolation`` defaults to
+        ``nodata`` defaults to the file's own tag; a value given replaces the
+        tag (``nodata=nan``: only NaN marks no data). An untagged band whose
+        lowest value is a usual void (-9999, -99999, -32767, -32768, <= -1e30)
+        is refused until ``nodata`` says what it is. A compound CRS whose
+        vertical part is a geoid height (NAVD88...) is read as ellipsoidal
+        heights with a warning unless ``geoid`` is given; a vertical unit in
+        feet is converted to metres. ``interpolation`` defaults to
         "nearest" for a warped raster, else "bilinear".
 
         ``.npz``: arrays ``heights`` and scalars ``lat_first``, ``lon_first``,
@@ -371,6 +388,8 @@ class GeodeticDSM:
         The file is only read, never written.
         """
         path = Path(path)
+        if path.is_dir():
+            raise DSMError(f"DSM file {path}: is a directory, not a raster or .npz file")
         if not path.is_file():
             raise FileNotFoundError(f"DSM file {path}: no such file")
         if isinstance(band, (bool, np.bool_)) or not isinstance(band, (int, np.integer)):
@@ -404,11 +423,11 @@ class GeodeticDSM:
     def _read_raster(cls, path, band, nodata, geoid, interpolation, resampling, a, f, hmax):
         try:
             import rasterio
-            from rasterio.warp import Resampling, calculate_default_transform, reproject
+            from rasterio.warp import Resampling, reproject
         except ImportError:
             raise ImportError(f"reading {path} needs rasterio: pip install 'planet-intersect[geo]'") from None
         if resampling not in ("nearest", "bilinear"):
-            raise DSMError(f"resampling must be 'nearest' or 'bilinear', got {resampling!r}")
+            raise DSMError(f"DSM file {path}: resampling must be 'nearest' or 'bilinear', got {resampling!r}")
         try:
             src = rasterio.open(path)
         except Exception as exc:  # noqa: BLE001
@@ -426,6 +445,16 @@ class GeodeticDSM:
                 # reader refuses -32768 as well
                 raise DSMError(f"DSM file {path}: band {band} is int16 and holds -32768, the usual void value, "
                                f"but has no nodata tag: pass nodata=-32768 (or another value) to read it")
+            untagged = nodata is None and (src.nodata is None or not math.isfinite(src.nodata))
+            if untagged and raw.size and raw.dtype.kind in "fi":
+                # the other usual voids, untagged: a float -9999 was read as a 9,999 m pit and every
+                # method hit it (a walk-through)
+                lowest = float(np.nanmin(raw)) if raw.dtype.kind == "f" and not np.isnan(raw).all() else (
+                    float(raw.min()) if raw.dtype.kind == "i" else math.nan)
+                if lowest in _VOID_VALUES or lowest <= -1e30:
+                    raise DSMError(f"DSM file {path}: band {band} holds {lowest:g}, a usual no-data value, but "
+                                   f"has no nodata tag: pass nodata={lowest:g} to read those cells as no data "
+                                   f"(or nodata=<a value not in the file> to read them as heights)")
             warped = None
             if src.crs.is_geographic and _geographic_datum(src.crs, src.bounds, path, "DSM", a, f) == "as-is":
                 t = src.transform
@@ -437,11 +466,7 @@ class GeodeticDSM:
                 lat_first = t.f + 0.5 * t.e
                 crs = src.crs
             else:
-                dst_crs = "EPSG:4326"
-                try:
-                    tr, w, hgt = calculate_default_transform(src.crs, dst_crs, src.width, src.height, *src.bounds)
-                except Exception as exc:  # noqa: BLE001
-                    raise DSMError(f"DSM file {path}: cannot be warped to a geodetic grid ({exc})") from None
+                dst_crs, tr, w, hgt = _geodetic_grid(src, path, "DSM", DSMError)
                 heights = np.full((hgt, w), np.nan)
                 srcdata = raw.astype(np.float64)
                 if nd is not None:
@@ -455,6 +480,7 @@ class GeodeticDSM:
                 lat_first = tr.f + 0.5 * tr.e
                 warped = resampling
                 crs = src.crs
+        heights = _vertical_datum(crs, path, heights, geoid, a, nd)
         interp = interpolation or ("nearest" if warped else "bilinear")
         try:
             dsm = cls.from_array(heights, lat_first, lon_first, dlat, dlon, a=a, f=f, nodata=nd, geoid=geoid,
@@ -466,6 +492,72 @@ class GeodeticDSM:
         dsm.crs = str(crs)
         dsm.file_bands = file_bands
         return dsm
+
+
+def _geodetic_grid(src, path, what: str, error):
+    """The WGS-84 geodetic grid a raster ``src`` (rasterio, projected or another datum) is warped to:
+    ``(dst_crs, transform, width, height)``, rasterio's ``calculate_default_transform`` (about the
+    source's resolution). A raster across the antimeridian has, in EPSG:4326, a grid spanning
+    -180..180 with zero rows (a 300 m UTM tile at 180 E crashed rasterio: a walk-through); the same
+    datum with longitudes in [0, 360) keeps it whole, and GeodeticDSM and OrthoImage take grids that
+    cross the antimeridian. Any failure is ``error`` naming the file."""
+    from rasterio.warp import calculate_default_transform
+
+    dst_crs = "EPSG:4326"
+    try:
+        tr, w, hgt = calculate_default_transform(src.crs, dst_crs, src.width, src.height, *src.bounds)
+        if w == 0 or hgt == 0 or w * abs(tr.a) > 180.0:
+            dst_crs = "+proj=longlat +datum=WGS84 +lon_wrap=180 +no_defs"
+            tr, w, hgt = calculate_default_transform(src.crs, dst_crs, src.width, src.height, *src.bounds)
+        if w == 0 or hgt == 0:
+            raise ValueError(f"the geodetic grid has {hgt} x {w} cells")
+    except Exception as exc:  # noqa: BLE001
+        raise error(f"{what} file {path}: cannot be warped to a geodetic grid ({exc})") from None
+    return dst_crs, tr, w, hgt
+
+
+#: untagged values read as no-data only when the caller says so (GeodeticDSM.read refuses them)
+_VOID_VALUES = (-9999.0, -99999.0, -32767.0, -32768.0)
+
+
+def _vertical_datum(crs, path, heights: np.ndarray, geoid, a: float, nodata=None) -> np.ndarray:
+    """The heights of a raster read in ``crs``, with what its CRS says of them applied or said.
+
+    * A compound CRS with a vertical part (e.g. "UTM 14N + NAVD88 height") states heights above
+      a geoid or a vertical datum, not the ellipsoid: without ``geoid`` a UserWarning says so
+      (they are read as ellipsoidal heights, ~25 m off in Kansas; a walk-through saw no word of
+      it). A vertical unit other than the metre (a foot) is converted to metres when the DSM is
+      in metres (``a`` of the Earth in metres), else said.
+    * A projected CRS whose unit is not the metre (a State Plane grid in US feet) says nothing of
+      the heights' unit: a UserWarning that they are taken as the DSM's unit (metres).
+    """
+    import pyproj
+
+    try:
+        c = pyproj.CRS.from_user_input(crs.to_wkt())
+    except Exception:  # noqa: BLE001  (the warp has already used the CRS: nothing more to say)
+        return heights
+    vert = [sc for sc in c.sub_crs_list if sc.is_vertical] if c.is_compound else []
+    metres = abs(a - WGS84_A) < 0.01 * WGS84_A
+    if vert:
+        v = vert[0]
+        unit = v.axis_info[0].unit_name if v.axis_info else "metre"
+        factor = v.axis_info[0].unit_conversion_factor if v.axis_info else 1.0
+        if geoid is None:
+            warnings.warn(f"DSM file {path}: its CRS gives the heights as '{v.name}' (above a geoid or a "
+                          f"vertical datum, not the ellipsoid); they are read as heights above the ellipsoid: "
+                          f"pass geoid= (the undulation N) to make them ellipsoidal", UserWarning, stacklevel=4)
+        if factor != 1.0:
+            if metres:                                 # (cells of the nodata value stay as they are)
+                heights = np.where(heights == nodata, heights, heights * factor) if nodata is not None \
+                    else heights * factor
+            else:
+                warnings.warn(f"DSM file {path}: its heights are in {unit} ('{v.name}'); they are read "
+                              f"unconverted in the unit of a = {a:g}", UserWarning, stacklevel=4)
+    elif c.is_projected and c.axis_info and c.axis_info[0].unit_conversion_factor != 1.0:
+        warnings.warn(f"DSM file {path}: its CRS ({c.name}) is in {c.axis_info[0].unit_name}, and says "
+                      f"nothing of the heights' unit: they are read as metres", UserWarning, stacklevel=4)
+    return heights
 
 
 def _geographic_datum(crs, bounds, path, what: str, a=None, f=None) -> str:
@@ -503,6 +595,12 @@ def _geographic_datum(crs, bounds, path, what: str, a=None, f=None) -> str:
     if not (math.isfinite(lon2) and math.isfinite(lat2)):
         raise DSMError(f"{what} file {path}: no transformation from its CRS ({c.name}) to WGS-84")
     shift = math.hypot((lat2 - lat_c) * 111_320.0, (lon2 - lon_c) * 111_320.0 * math.cos(math.radians(lat_c)))
+    if shift <= 0.01 and cf == 0.0:
+        # PROJ has no datum shift from an Earth-sized sphere (a "ballpark" transformation): its
+        # latitudes are taken as WGS-84's, which they usually are; if they are spherical
+        # (geocentric) ones they are up to 0.19 deg off (a walk-through saw it taken silently)
+        warnings.warn(f"{what} file {path}: its CRS ({c.name}) is on a sphere of radius {ca:.10g} m; its "
+                      f"latitudes and longitudes are read as WGS-84 geodetic ones", UserWarning, stacklevel=4)
     return "warp" if shift > 0.01 else "as-is"
 
 
@@ -634,6 +732,14 @@ def intersect_dsm(dsm: GeodeticDSM, s, l, method: str = "following", threads: in
 def _npz_arrays(path, required, what: str, error=ValueError, hint: str = "") -> dict:
     """The arrays of a .npz file (no pickles) as a dict; ``error`` naming ``what``
     and the path when it cannot be read or lacks one of ``required``."""
+    import zipfile
+
+    try:
+        if not zipfile.is_zipfile(path):
+            # (np.load's own message for such a file is a hint about allow_pickle: a walk-through)
+            raise error(f"{what} {path}: not a .npz file (a .npz is a zip archive of NumPy arrays)")
+    except OSError as exc:
+        raise error(f"{what} {path}: cannot be read ({exc})") from None
     try:
         with np.load(path, allow_pickle=False) as z:
             d = {k: z[k] for k in z.files}

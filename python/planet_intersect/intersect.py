@@ -270,6 +270,10 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
                                    ("tangent", tangent != "exact"), ("io", io != "records")) if v}
         if given:
             raise TypeError(f"intersect: {sorted(given)} apply to a planetary DEM, not a GeodeticDSM")
+        unknown = sorted(set(dsm_options) - {"outside"})
+        if unknown:                          # (named as intersect's, not the inner intersect_dsm's: a walk-through)
+            raise TypeError(f"intersect: unexpected keyword argument(s) {unknown} (a GeodeticDSM takes method, "
+                            f"threads and outside)")
         return intersect_dsm(dem, s, l, method="following" if method is None else method, threads=threads,
                              **dsm_options)
     if not isinstance(dem, DEM):

@@ -202,6 +202,8 @@ class OrthoImage:
         The file is only read.
         """
         path = Path(path)
+        if path.is_dir():
+            raise ValueError(f"ortho-image file {path}: is a directory, not a raster or .npz file")
         if not path.is_file():
             raise FileNotFoundError(f"ortho-image file {path}: no such file")
         if path.suffix.lower() == ".npz":
@@ -215,7 +217,7 @@ class OrthoImage:
             return o
         try:
             import rasterio
-            from rasterio.warp import Resampling, calculate_default_transform, reproject
+            from rasterio.warp import Resampling, reproject
         except ImportError:
             raise ImportError(f"reading {path} needs rasterio: pip install 'planet-intersect[geo]'") from None
         try:
@@ -228,7 +230,7 @@ class OrthoImage:
             nd = _file_nodata(nodata, src.nodata)
             data = src.read()                                   # (bands, rows, cols)
             dtype = data.dtype
-            from .dsm import _geographic_datum
+            from .dsm import _geodetic_grid, _geographic_datum
 
             if src.crs.is_geographic and _geographic_datum(src.crs, src.bounds, path, "ortho-image") == "as-is":
                 t = src.transform
@@ -236,14 +238,14 @@ class OrthoImage:
                     raise ValueError(f"ortho-image file {path}: rotated or sheared pixel grid is not supported")
                 values = np.moveaxis(data, 0, -1).astype(np.float64)
             else:
-                tr, w, h = calculate_default_transform(src.crs, "EPSG:4326", src.width, src.height, *src.bounds)
+                dst_crs, tr, w, h = _geodetic_grid(src, path, "ortho-image", ValueError)
                 src_f = data.astype(np.float64)
                 if nd is not None:
                     src_f[src_f == nd] = np.nan
                 values = np.full((src.count, h, w), np.nan)
                 for b in range(src.count):
                     reproject(src_f[b], values[b], src_transform=src.transform, src_crs=src.crs, src_nodata=np.nan,
-                              dst_transform=tr, dst_crs="EPSG:4326", dst_nodata=np.nan,
+                              dst_transform=tr, dst_crs=dst_crs, dst_nodata=np.nan,
                               resampling=Resampling.bilinear)
                 values = np.moveaxis(values, 0, -1)
                 nd = None
