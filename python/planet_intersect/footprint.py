@@ -464,6 +464,15 @@ def _passive(axis: str, t) -> np.ndarray:
     return np.moveaxis(np.array(rows), (0, 1), (-2, -1))
 
 
+def _radial_velocity(R: np.ndarray, v: np.ndarray, flat: np.ndarray) -> None:
+    """ValueError for the first velocity along its position, showing the values as the caller
+    gave them (the message showed the internal power-of-two rescaling: v = [3.4, 0, 0] was
+    reported as [0.85 0. 0.], a vector the user never passed; a walk-through)."""
+    k = int(np.argmax(flat))
+    raise ValueError(f"v[{k}] = {np.asarray(v[k]).tolist()} has no component perpendicular to R[{k}] = "
+                     f"{np.asarray(R[k]).tolist()}: the along-track axis is undefined")
+
+
 def frame_angles(R, v):
     """The notes' recommended rotation angles (radians) from state vectors.
 
@@ -482,6 +491,7 @@ def frame_angles(R, v):
     R = np.broadcast_to(R, (n, 3))
     v = np.broadcast_to(v, (n, 3))
     _nonzero(R, "R")
+    v_in = v
     # directions only: scaled by powers of two (exact), so that no magnitude overflows
     Rs, v = _pow2_scaled(R), _pow2_scaled(v)
     rh = Rs / np.linalg.norm(Rs, axis=1)[:, None]
@@ -492,8 +502,7 @@ def frame_angles(R, v):
     vn = np.linalg.norm(v, axis=1)
     flat = ~(vp > 1e-12 * np.maximum(vn, 1e-300))
     if flat.any():
-        k = int(np.argmax(flat))
-        raise ValueError(f"v[{k}] = {v[k]} has no component perpendicular to R[{k}]: the along-track axis is undefined")
+        _radial_velocity(R, v_in, flat)
     east = np.stack([-np.sin(lam), np.cos(lam), np.zeros(n)], axis=1)
     north = np.stack([-np.sin(beta) * np.cos(lam), -np.sin(beta) * np.sin(lam), np.cos(beta)], axis=1)
     alpha = np.arctan2(np.sum(vperp * north, axis=1), np.sum(vperp * east, axis=1))   # [note 8]
@@ -1009,14 +1018,14 @@ def _state_frames(R: np.ndarray, v: np.ndarray) -> np.ndarray:
     :func:`frame_angles`' angles, which footprint() does not use (a third of its
     per-call time for one spectrum per call). Both are scaled by powers of two first
     (exact: the same frame for any magnitude)."""
+    R_in, v_in = R, v
     R, v = _pow2_scaled(R), _pow2_scaled(v)
     x = R / np.linalg.norm(R, axis=1, keepdims=True)
     y = v - np.sum(v * x, axis=1)[:, None] * x
     vp = np.linalg.norm(y, axis=1)
     flat = ~(vp > 1e-12 * np.maximum(np.linalg.norm(v, axis=1), 1e-300))
     if flat.any():
-        k = int(np.argmax(flat))
-        raise ValueError(f"v[{k}] = {v[k]} has no component perpendicular to R[{k}]: the along-track axis is undefined")
+        _radial_velocity(R_in, v_in, flat)
     y /= vp[:, None]
     M = np.empty((len(R), 3, 3))
     M[:, 0] = x

@@ -1,0 +1,53 @@
+"""Faults a newcomer's walk-through of the footprint system found (docs/grs-notes.md, notes 5,
+19 and 20): km defaults applied to a DEM in metres, messages showing values the user never
+passed or ranges that disagree, Hardie's air mass past its peak, ``==`` on results crashing, a
+due-north position angle of 359.99999999999994, and to_xarray without per-variable units.
+
+The snippets are the walk-through's: a sphere of 3396.19 (km, and the same in metres), 0.5 deg
+cells, a spacecraft 400 km above (0 N, 0 E) moving north.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+import re
+
+import numpy as np
+import pytest
+
+import planet_intersect as pi
+
+F = importlib.import_module("planet_intersect.footprint")     # (pi.footprint is the function)
+
+RE = 3396.19
+R0 = np.array([3796.19, 0.0, 0.0])
+V0 = [0.0, 0.0, 3.4]
+
+
+@pytest.fixture(scope="module")
+def km():
+    return pi.CellTable(pi.DEM.from_array(np.full((720, 1440), RE), f=0, re=RE), 0.5)
+
+
+@pytest.fixture(scope="module")
+def metres():
+    return pi.CellTable(pi.DEM.from_array(np.full((720, 1440), RE * 1e3), re=RE * 1e3), 0.5)
+
+
+def _hardie(z):
+    s = 1.0 / np.cos(np.radians(z)) - 1.0
+    return s + 1.0 - 0.0018167 * s - 0.002875 * s ** 2 - 0.0008083 * s ** 3
+
+
+# ---------------------------------------------------------------------------- finding 2: v message
+def test_radial_velocity_message_shows_the_values_given(km):
+    """It showed v[0] = [0.85 0. 0.], the internal power-of-two rescaling of [3.4, 0, 0]."""
+    msg = "v[0] = [3.4, 0.0, 0.0] has no component perpendicular to R[0] = [3796.19, 0.0, 0.0]"
+    with pytest.raises(ValueError, match=re.escape(msg)):
+        pi.footprint(km, R0, [3.4, 0, 0])
+    with pytest.raises(ValueError, match=re.escape(msg)):
+        F.spacecraft_frame(R0, [3.4, 0, 0])
+    with pytest.raises(ValueError, match=re.escape("v[1] = [-7.0, 0.0, 0.0] has no component perpendicular "
+                                                   "to R[1] = [3796.19, 0.0, 0.0]")):
+        pi.footprint(km, [R0, R0], [[0, 1.0, 0], [-7.0, 0, 0]])
