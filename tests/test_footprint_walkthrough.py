@@ -51,3 +51,14 @@ def test_radial_velocity_message_shows_the_values_given(km):
     with pytest.raises(ValueError, match=re.escape("v[1] = [-7.0, 0.0, 0.0] has no component perpendicular "
                                                    "to R[1] = [3796.19, 0.0, 0.0]")):
         pi.footprint(km, [R0, R0], [[0, 1.0, 0], [-7.0, 0, 0]])
+
+
+# ---------------------------------------------------------------------------- finding 3: z range
+@pytest.mark.parametrize("z, got", [(-10, "-10.0"), (181, "181.0"), (np.nan, "nan"), (np.inf, "inf"),
+                                    ([10.0, 200.0], "200.0 at flat index 1")])
+def test_airmass_zenith_range_message_agrees_with_what_is_accepted(z, got):
+    """-10 said [0, 180], 181 and NaN said [-180, 180]; [0, 180] is what is accepted."""
+    with pytest.raises(ValueError, match=re.escape(f"z_deg: angles must be finite and within [0, 180] "
+                                                   f"degrees, got {got}")):
+        pi.airmass(z)
+    assert np.isfinite(pi.airmass([0.0, 180.0])).all()

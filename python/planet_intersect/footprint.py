@@ -92,16 +92,24 @@ def _pow2_scaled(a: np.ndarray) -> np.ndarray:
     return np.ldexp(a, -e[:, None])
 
 
-def _angles(x, name: str, limit: float) -> np.ndarray:
-    """x (degrees) as a float64 array, finite and within [-limit, limit], or ValueError naming it."""
+def _angles(x, name: str, limit: float, lo: float | None = None) -> np.ndarray:
+    """x (degrees) as a float64 array, finite and within [lo, limit] (lo default -limit), or
+    ValueError naming it, the accepted range and the first value outside it."""
+    lo = -limit if lo is None else lo
     if np.iscomplexobj(x) or isinstance(x, (bool, np.bool_)):
         raise ValueError(f"{name}: expected real numbers (degrees), got {x!r}")
     try:
         a = np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError):
         raise ValueError(f"{name}: expected real numbers (degrees), got {x!r}") from None
-    if a.dtype == bool or not (np.isfinite(a).all() and (np.abs(a) <= limit).all()):
-        raise ValueError(f"{name}: angles must be finite and within [-{limit:g}, {limit:g}] degrees")
+    with np.errstate(invalid="ignore"):
+        bad = ~(np.isfinite(a) & (a >= lo) & (a <= limit))
+    if bad.any():
+        # one message for every value refused (airmass said [0, 180] for -10 and [-180, 180]
+        # for 181 or NaN: a walk-through)
+        k = int(np.argmax(bad.reshape(-1)))
+        raise ValueError(f"{name}: angles must be finite and within [{lo:g}, {limit:g}] degrees, got "
+                         f"{float(a.reshape(-1)[k])!r}" + (f" at flat index {k}" if a.ndim else ""))
     return a
 
 
@@ -798,9 +806,7 @@ def airmass(z_deg, H: float | None = None, R: float | np.ndarray | None = None, 
     """
     if model not in _AIRMASS_MODELS:
         raise ValueError(f"model must be one of {', '.join(_AIRMASS_MODELS)}, got {model!r}")
-    z = _angles(z_deg, "z_deg", 180.0)
-    if (z < 0).any():
-        raise ValueError("z_deg: zenith angles must be finite and within [0, 180] degrees")
+    z = _angles(z_deg, "z_deg", 180.0, lo=0.0)
     if model == "chapman":
         H = scale_height() if H is None else _real(H, "H", lo=0.0, lo_open=True)
         if R is None:
