@@ -62,3 +62,21 @@ def test_airmass_zenith_range_message_agrees_with_what_is_accepted(z, got):
                                                    f"degrees, got {got}")):
         pi.airmass(z)
     assert np.isfinite(pi.airmass([0.0, 180.0])).all()
+
+
+# ---------------------------------------------------------------------------- finding 5: ==
+def test_footprint_results_compare_with_eq(km):
+    """a == b raised "the truth value of an array ... is ambiguous" (the dataclass's tuple ==)."""
+    a = pi.footprint(km, R0, V0)
+    b = pi.footprint(km, R0, V0)
+    assert (a == b) is True and (a != b) is False and a == a
+    assert a == pi.footprint(pi.CellTable(km.dem, 0.5), R0, V0)                # another table, same DEM
+    assert a == a.subset(np.ones(len(a), bool))
+    assert pi.footprint(km, R0) == pi.footprint(km, R0)                         # NaN azimuths equal
+    assert (a == pi.footprint(km, R0 * 1.001, V0)) is False
+    assert (a == pi.footprint(km, R0, V0, zeta=0.5)) is False
+    assert (a == pi.footprint(km, R0, V0, airmass_model="secant")) is False
+    assert (a == pi.footprint(km, R0, V0, area=1.0)) is False
+    assert (a == 3) is False and a != "x"
+    with pytest.raises(TypeError):
+        hash(a)

@@ -846,7 +846,7 @@ _PAIR_FIELDS = ("spectrum", "cell", "d", "distance", "solid_angle", "zenith_cent
                 "nadir_angle", "position_angle", "gsh", "azimuth", "elevation", "visible")
 
 
-@dataclass
+@dataclass(eq=False)
 class FootprintResult:
     """Geometry of every (spectrum, cell) pair in the footprints, flat over the pairs.
 
@@ -889,6 +889,11 @@ class FootprintResult:
     airmass : (M,)
         Computed on first access: :func:`airmass` of ``zenith_centric`` with the
         model, H and the cell's radius given to :func:`footprint` [note 4].
+
+    ``a == b`` is True when both hold the same pairs with every array equal
+    exactly (NaN equal to NaN), the same ``airmass_model`` and ``H``, and cell
+    tables of the same DEM object and cell size; for a tolerance compare the
+    arrays (``np.allclose(a.emission, b.emission)``). Results are not hashable.
     """
 
     spectrum: np.ndarray
@@ -913,6 +918,27 @@ class FootprintResult:
 
     def __len__(self) -> int:
         return len(self.spectrum)
+
+    # the dataclass's own == compared the arrays as tuples and raised "the truth value of an
+    # array ... is ambiguous" (a walk-through): an equality of values instead
+    def __eq__(self, other):
+        if not isinstance(other, FootprintResult):
+            return NotImplemented
+        if self is other:
+            return True
+        same_cells = self.cells is other.cells or (self.cells.dem is other.cells.dem
+                                                   and self.cells.cell_deg == other.cells.cell_deg)
+        if not (same_cells and self.airmass_model == other.airmass_model and self.H == other.H):
+            return False
+        for name in _PAIR_FIELDS + ("zeta",):
+            a, b = np.asarray(getattr(self, name)), np.asarray(getattr(other, name))
+            if a.shape != b.shape:
+                return False
+            if not np.array_equal(a, b, equal_nan=a.dtype.kind == "f" and b.dtype.kind == "f"):
+                return False
+        return True
+
+    __hash__ = None          # mutable arrays: not hashable (as the dataclass made it)
 
     @property
     def airmass(self) -> np.ndarray:
