@@ -80,3 +80,22 @@ def test_footprint_results_compare_with_eq(km):
     assert (a == 3) is False and a != "x"
     with pytest.raises(TypeError):
         hash(a)
+
+
+# ---------------------------------------------------------------------------- finding 6: PA 360
+def test_due_north_position_angle_is_zero(km):
+    """A spacecraft over the cell at (0.25 N, 10.25 E) saw the cell at (2.25 N, 10.25 E) at
+    359.99999999999994 deg; the documented range is [0, 360)."""
+    k, kk = int(km.index(0.25, 10.25)), int(km.index(2.25, 10.25))
+    R = km.u[k] * 3796.19
+    fp = pi.footprint(km, R, V0)
+    pa = fp.position_angle[fp.cell == kk]
+    assert pa.tolist() == [0.0]
+    assert F.position_angle(R, km.r[kk]).tolist() == [0.0]
+    for a in (fp.position_angle, fp.azimuth):
+        a = a[np.isfinite(a)]
+        assert np.all((a >= 0) & (a < 360.0 - 4 * 2.0 ** -44))
+    # only the last four ulp below 360 move: the next representable values stay
+    x = np.array([360.0 - 5 * 2.0 ** -44, 360.0 - 4 * 2.0 ** -44, 360.0 - 2.0 ** -44, np.nan, 1e-14])
+    F._snap_360(x)
+    assert x[0] == 360.0 - 5 * 2.0 ** -44 and x[1] == 0.0 and x[2] == 0.0 and np.isnan(x[3]) and x[4] == 1e-14

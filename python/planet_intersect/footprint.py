@@ -620,6 +620,17 @@ def orbit_frame(R, v):
 # ----------------------------------------------------------------------------------------
 # position angle
 # ----------------------------------------------------------------------------------------
+#: angles (deg) from here up to 360 are reported as 0: four ulp of 360 (2.3e-13 deg, 4e-15 rad), far
+#: below the angles' accuracy (~1e-13 deg), so that a due-north cell does not come out as
+#: 359.99999999999994 in the documented range [0, 360) (a walk-through) [note 5]
+_SNAP_360 = 360.0 - 4 * 2.0 ** -44
+
+
+def _snap_360(a: np.ndarray) -> None:
+    """In place: values of a within four ulp below 360 (deg) set to 0 (NaN left as is)."""
+    a[a >= _SNAP_360] = 0.0
+
+
 def position_angle(R, r_c) -> np.ndarray:
     """Position angle (deg, [0, 360)) of points r_c seen from the sub-spacecraft point of R.
 
@@ -645,7 +656,7 @@ def position_angle(R, r_c) -> np.ndarray:
     x = np.sum(u * E, axis=1)
     y = np.sum(u * N, axis=1)
     pa = np.degrees(np.arctan2(x, y)) % 360.0
-    pa = np.where(pa >= 360.0, 0.0, pa)
+    pa = np.where(pa >= _SNAP_360, 0.0, pa)                   # [0, 360): 360 less rounding is 0 [note 5]
     cb = np.hypot(rh[:, 0], rh[:, 1])
     bad = (cb <= 1e-12) | ~(np.hypot(x, y) > 1e-13 * cb)
     return np.where(bad, np.nan, pa)
@@ -1253,6 +1264,10 @@ def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta:
     # angles in degrees from the kernel (the same rounding as multiplying the radians afterwards)
     idx, d, gsh, scal, buffers = _run_kernel(cells, R, frames, zeta_arr, area, int(threads), ascale=180.0 / math.pi,
                                              buffers=getattr(out, "_buffers", None))
+    # the kernel's [0, 360) wraps leave a due-north PA (or a due-forward azimuth) at
+    # 359.99999999999994 now and then: within four ulp of 360 is 0 [note 5]
+    _snap_360(scal[:, 6])
+    _snap_360(scal[:, 7])
     visible = buffers.visible[:len(idx)]
     visible.fill(True)
     res = FootprintResult(
