@@ -99,3 +99,27 @@ def test_due_north_position_angle_is_zero(km):
     x = np.array([360.0 - 5 * 2.0 ** -44, 360.0 - 4 * 2.0 ** -44, 360.0 - 2.0 ** -44, np.nan, 1e-14])
     F._snap_360(x)
     assert x[0] == 360.0 - 5 * 2.0 ** -44 and x[1] == 0.0 and x[2] == 0.0 and np.isnan(x[3]) and x[4] == 1e-14
+
+
+# ---------------------------------------------------------------------------- finding 7: units
+@pytest.mark.parametrize("layout", ["pairs", "dense"])
+def test_to_xarray_has_units_and_long_names(km, layout):
+    pytest.importorskip("xarray")
+    fp = pi.footprint(km, R0, V0)
+    ds = fp.to_xarray(layout)
+    want = {"solid_angle": "sr", "emission": "degree", "position_angle": "degree", "azimuth": "degree",
+            "elevation": "degree", "nadir_angle": "degree", "zenith_centric": "degree", "zenith_detic": "degree",
+            "airmass": "1", "zeta": "1", "distance": "DEM length unit", "gsh": "DEM length unit",
+            "lat": "degrees_north", "lon": "degrees_east"}
+    if layout == "pairs":
+        want["d"] = "DEM length unit"
+    for name, units in want.items():
+        assert ds[name].attrs["units"] == units, name
+    for name in ds.variables:
+        assert ds[name].attrs.get("long_name"), name
+    assert "units" not in ds["visible"].attrs and "chapman" in ds["airmass"].attrs["long_name"]
+    dk = fp.to_xarray(layout, length_unit="km")
+    assert dk["distance"].attrs["units"] == "km" and dk["gsh"].attrs["units"] == "km"
+    assert dk["solid_angle"].attrs["units"] == "sr"
+    with pytest.raises(TypeError, match="length_unit"):
+        fp.to_xarray(layout, length_unit=1000)

@@ -995,12 +995,22 @@ class FootprintResult:
         cols["airmass"] = self.airmass
         return cols
 
-    def to_xarray(self, layout: str = "pairs"):
+    def to_xarray(self, layout: str = "pairs", length_unit: str | None = None):
         """An ``xarray.Dataset``: ``layout="pairs"`` (dimension ``pair``, with the
         spectrum and cell of each as coordinates) or ``"dense"`` (dimensions
         ``spectrum`` x ``cell`` over the cells that occur in any footprint, NaN
-        where a cell is not in a spectrum's footprint)."""
+        where a cell is not in a spectrum's footprint).
+
+        Every variable and coordinate has ``units`` and ``long_name`` attributes
+        (angles "degree", lat/lon "degrees_north"/"degrees_east", solid angle
+        "sr", air mass and zeta "1"). Lengths (d, distance, gsh) are in the
+        DEM's unit, which the DEM does not record: their ``units`` is
+        ``length_unit`` when given (e.g. "km" for the Mars grids), else
+        "DEM length unit"."""
         import xarray as xr
+
+        if length_unit is not None and not isinstance(length_unit, str):
+            raise TypeError(f"length_unit must be a string such as 'km' or 'm', got {length_unit!r}")
 
         attrs = dict(angles="degrees; position_angle clockwise from north through east [0, 360)",
                      frame="planet-fixed, x to 0N 0E, z north; gsh: x up, y along track, z left",
@@ -1016,7 +1026,7 @@ class FootprintResult:
                       "pair_spectrum": ("pair", self.spectrum), "pair_cell": ("pair", self.cell),
                       "spectrum": np.arange(self.n_spectra),
                       "lat": ("pair", self.cells.lat[self.cell]), "lon": ("pair", self.cells.lon[self.cell])}
-            return xr.Dataset(data, coords=coords, attrs=attrs)
+            return self._var_attrs(xr.Dataset(data, coords=coords, attrs=attrs), length_unit)
         if layout != "dense":
             raise ValueError(f"layout must be 'pairs' or 'dense', got {layout!r}")
         used, col = np.unique(self.cell, return_inverse=True)
@@ -1033,7 +1043,51 @@ class FootprintResult:
         data["zeta"] = ("spectrum", self.zeta)
         coords = {"spectrum": np.arange(ns), "cell": used, "xyz": ["x", "y", "z"],
                   "lat": ("cell", self.cells.lat[used]), "lon": ("cell", self.cells.lon[used])}
-        return xr.Dataset(data, coords=coords, attrs=attrs)
+        return self._var_attrs(xr.Dataset(data, coords=coords, attrs=attrs), length_unit)
+
+    def _var_attrs(self, ds, length_unit: str | None):
+        """units and long_name of each variable and coordinate present in ds (only a global
+        "angles: degrees" until a walk-through asked for them per variable)."""
+        L = length_unit if length_unit is not None else _DEM_LENGTH_UNIT
+        table = dict(_XARRAY_ATTRS)
+        table["airmass"] = ("1", f"relative air mass at zenith_centric ({self.airmass_model} model)")
+        for name, (units, long_name) in table.items():
+            if name in ds.variables:
+                if units is not None:
+                    ds[name].attrs["units"] = L if units == "L" else units
+                ds[name].attrs["long_name"] = long_name
+        return ds
+
+
+#: units of the lengths in to_xarray when the caller does not name the DEM's unit
+_DEM_LENGTH_UNIT = "DEM length unit"
+
+#: to_xarray's per-variable attributes: (units, "L" = the DEM's length unit, None for none; long_name)
+_XARRAY_ATTRS = {
+    "d": ("L", "cell centre to spacecraft, R - r_C, planet-fixed frame"),
+    "distance": ("L", "distance from the cell centre to the spacecraft, |d|"),
+    "solid_angle": ("sr", "solid angle of the detector seen from the cell, area / |d|^2"),
+    "zenith_centric": ("degree", "zenith angle of the spacecraft at the cell, from the areocentric normal"),
+    "zenith_detic": ("degree", "zenith angle of the spacecraft at the cell, from the areodetic (spheroid) normal"),
+    "emission": ("degree", "emission angle, from the cell's topographic normal"),
+    "nadir_angle": ("degree", "nadir angle psi of the cell seen from the spacecraft"),
+    "position_angle": ("degree", "bearing of the cell from the sub-spacecraft point, clockwise from north "
+                                 "through east, [0, 360)"),
+    "gsh": ("L", "r_C - R in the spacecraft frame (x up, y along track, z left)"),
+    "azimuth": ("degree", "direction of the cell in the spacecraft frame, from +y (forward) toward +z (left), "
+                          "[0, 360)"),
+    "elevation": ("degree", "elevation of the cell above the spacecraft frame's y-z plane"),
+    "visible": (None, "line of sight not blocked by terrain (all True without occlusion)"),
+    "zeta": ("1", "cos psi threshold of the footprint cone, per spectrum"),
+    "lat": ("degrees_north", "areocentric latitude of the cell centre"),
+    "lon": ("degrees_east", "east longitude of the cell centre"),
+    "pair_spectrum": (None, "index of the pair's spectrum (state vector)"),
+    "pair_cell": (None, "index of the pair's cell in the cell table"),
+    "spectrum": (None, "index of the spectrum (state vector)"),
+    "cell": (None, "index of the cell in the cell table"),
+    "pair": (None, "index of the (spectrum, cell) pair"),
+    "xyz": (None, "vector component"),
+}
 
 
 class _PairBuffers:
