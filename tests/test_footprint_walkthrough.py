@@ -64,6 +64,32 @@ def test_airmass_zenith_range_message_agrees_with_what_is_accepted(z, got):
     assert np.isfinite(pi.airmass([0.0, 180.0])).all()
 
 
+# ---------------------------------------------------------------------------- finding 4: Hardie
+def test_hardie_is_nan_beyond_its_peak(km):
+    """Hardie's cubic in s = sec z - 1 peaks where 0.9981833 - 0.00575 s - 0.0024249 s^2 = 0:
+    z = 87.1536556 deg, X = 13.3844128; beyond it the formula fell to -2.5e7 [note 20]."""
+    zp, xp = F.HARDIE_PEAK_DEG, F.HARDIE_PEAK_AIRMASS
+    assert zp == pytest.approx(87.1536556, abs=1e-7) and xp == pytest.approx(13.3844128, abs=1e-7)
+    s = 1.0 / math.cos(math.radians(zp)) - 1.0
+    assert abs(0.9981833 - 0.00575 * s - 0.0024249 * s * s) < 1e-12          # dX/ds = 0 there
+    assert _hardie(zp - 1e-3) < xp and _hardie(zp + 1e-3) < xp
+    # below the peak: the formula, unchanged (bit for bit with the same arithmetic)
+    z = np.concatenate([np.linspace(0.0, zp - 1e-9, 2001), [85.0, 87.0, 87.15]])
+    got = pi.airmass(z, model="hardie")
+    np.testing.assert_allclose(got, _hardie(z), rtol=1e-15, atol=0)
+    assert np.all(np.diff(got[:2001]) > 0) and got[2000] == pytest.approx(xp, abs=1e-9)
+    # beyond it (and at and beyond 90 deg as before): NaN
+    assert np.isnan(pi.airmass([zp + 1e-9, 87.2, 88.0, 89.98, 90.0, 120.0], model="hardie")).all()
+    # in the footprint result: NaN exactly beyond the peak, the formula below, never below 1
+    fp = pi.footprint(km, R0, V0, airmass_model="hardie")
+    zc = fp.zenith_centric
+    assert zc.max() > 89.9 and (zc < zp).sum() == 7200
+    beyond = zc > zp
+    assert np.isnan(fp.airmass[beyond]).all() and beyond.sum() > 0
+    np.testing.assert_allclose(fp.airmass[~beyond], _hardie(zc[~beyond]), rtol=1e-15, atol=0)
+    assert fp.airmass[~beyond].min() >= 1.0 and fp.airmass[~beyond].max() <= xp
+
+
 # ---------------------------------------------------------------------------- finding 5: ==
 def test_footprint_results_compare_with_eq(km):
     """a == b raised "the truth value of an array ... is ambiguous" (the dataclass's tuple ==)."""

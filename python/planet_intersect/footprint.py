@@ -39,7 +39,7 @@ __all__ = [
     "position_angle", "position_angle_notes", "visible_cap_area", "keplerian_states", "orbit_study",
     "OrbitStudy", "plot_orbit_study", "plot_footprint_map", "FOOTPRINT_STATUS",
     "MARS_GM", "MARS_CO2_MOLECULAR_MASS", "MARS_ROTATION_RATE", "MARS_MEAN_RADIUS_KM", "BOLTZMANN", "AMU",
-    "ODYSSEY_AREA_KM2",
+    "ODYSSEY_AREA_KM2", "HARDIE_PEAK_DEG", "HARDIE_PEAK_AIRMASS",
 ]
 
 #: Mars GM, km^3/s^2 (GGM1025A, the gravity field of ../shared/data's areoid)
@@ -793,6 +793,17 @@ def chapman(x, z_deg) -> np.ndarray:
 
 _AIRMASS_MODELS = ("secant", "notes", "hardie", "chapman")
 
+# Hardie's cubic X(s) = 1 + (1 - 0.0018167) s - 0.002875 s^2 - 0.0008083 s^3 in s = sec z - 1
+# stops increasing where dX/ds = 0.9981833 - 0.00575 s - 0.0024249 s^2 = 0: its positive root
+# (written 2c/(b + sqrt(b^2 + 4ac)), free of cancellation) s = 19.1378838, z = 87.1536556 deg,
+# X = 13.3844128. Beyond it the fit falls (through 0 at 88.36 deg, to -2.5e7 at 89.98 deg): NaN there
+# [note 20]
+_HARDIE_S_PEAK = 2.0 * 0.9981833 / (0.00575 + math.sqrt(0.00575 ** 2 + 4.0 * 0.0024249 * 0.9981833))
+#: zenith angle (deg) and value of the peak of Hardie's (1962) air-mass fit: beyond it airmass(model="hardie") is NaN
+HARDIE_PEAK_DEG = math.degrees(math.acos(1.0 / (1.0 + _HARDIE_S_PEAK)))
+HARDIE_PEAK_AIRMASS = (1.0 + _HARDIE_S_PEAK - 0.0018167 * _HARDIE_S_PEAK - 0.002875 * _HARDIE_S_PEAK ** 2
+                       - 0.0008083 * _HARDIE_S_PEAK ** 3)
+
 
 def airmass(z_deg, H: float | None = None, R: float | np.ndarray | None = None, model: str = "chapman") -> np.ndarray:
     """Relative air mass at zenith angle ``z_deg`` (degrees).
@@ -806,7 +817,11 @@ def airmass(z_deg, H: float | None = None, R: float | np.ndarray | None = None, 
       one higher: 12 % low at 80 deg and negative at 85 deg for Mars, note 4);
       NaN at and beyond 90 deg.
     * "hardie": Hardie (1962), ``sec z - 0.0018167 (sec z - 1) - 0.002875 (sec z - 1)^2
-      - 0.0008083 (sec z - 1)^3`` (a fit for Earth's atmosphere, z < ~85 deg); NaN at and beyond 90 deg.
+      - 0.0008083 (sec z - 1)^3`` (a fit for Earth's atmosphere, z < ~85 deg). The cubic in
+      ``s = sec z - 1`` peaks where ``0.9981833 - 0.00575 s - 0.0024249 s^2 = 0``:
+      s = 19.1378838, z = 87.1536556 deg (``HARDIE_PEAK_DEG``), X = 13.3844128
+      (``HARDIE_PEAK_AIRMASS``); beyond it the formula falls (0 at 88.36 deg, -2.5e7 at
+      89.98 deg) and the value is NaN, as at and beyond 90 deg (docs/grs-notes.md, note 20).
     * "chapman": exact for a spherically stratified exponential atmosphere of
       scale height H (km) above radius R (km), valid from 0 to 180 deg
       (:func:`chapman` with x = R/H). H defaults to :func:`scale_height` (Mars,
@@ -847,6 +862,8 @@ def airmass(z_deg, H: float | None = None, R: float | np.ndarray | None = None, 
             x = sec - 0.018167 * s1 ** 2 - 0.002875 * s1 ** 3 - 0.0008083 * s1 ** 4     # as printed [note 4]
         else:
             x = sec - 0.0018167 * s1 - 0.002875 * s1 ** 2 - 0.0008083 * s1 ** 3       # Hardie (1962)
+            # beyond its peak (87.15 deg) the fit falls, to -2.5e7 near 90 deg: NaN [note 20]
+            x = np.where(s1 > _HARDIE_S_PEAK, np.nan, x)
     return np.where(z >= 90.0, np.nan, x)
 
 
