@@ -40,6 +40,58 @@ def _hardie(z):
     return s + 1.0 - 0.0018167 * s - 0.002875 * s ** 2 - 0.0008083 * s ** 3
 
 
+# ---------------------------------------------------------------------------- finding 1: units
+def test_metres_dem_refuses_the_km_defaults(metres):
+    """A DEM in metres got the km defaults of area (3.4e-9 km^2) and H (10.8 km) without a word:
+    solid angles 1e6 too small, air masses up to 612 [note 19]."""
+    Rm = R0 * 1e3
+    with pytest.raises(ValueError, match=r"^area and H: the DEM's largest cell radius reaches 3\.39619e\+06") as e:
+        pi.footprint(metres, Rm, V0)
+    assert "area=3.4e-3" in str(e.value) and "H=10807" in str(e.value) and "note 19" in str(e.value)
+    with pytest.raises(ValueError, match=r"^H: .*airmass_model=None"):
+        pi.footprint(metres, Rm, V0, area=3.4e-3)
+    with pytest.raises(ValueError, match=r"^area: "):
+        pi.footprint(metres, Rm, V0, H=1.08e4)
+    with pytest.raises(ValueError, match=r"^area: "):
+        pi.footprint(metres, Rm, V0, airmass_model=None)
+    # explicit values are taken as given (3.4e-9 too: the user's word), and models without H need none
+    for model in (None, "secant", "hardie", "notes"):
+        assert len(pi.footprint(metres, Rm, V0, area=3.4e-3, airmass_model=model)) == 8928
+    assert len(pi.footprint(metres, Rm, V0, area=3.4e-9, H=1.08e4)) == 8928
+    # the km DEM keeps its defaults
+    assert len(pi.footprint(pi.CellTable(pi.DEM.from_array(np.full((720, 1440), RE), re=RE), 0.5), R0, V0)) == 8928
+
+
+def test_metres_dem_with_metre_values_equals_the_km_dem(km, metres):
+    """The same scene in metres with area and H in metres: the km DEM's solid angles and air
+    masses to 1e-12 relative (measured 2.8e-15 and 1.1e-14)."""
+    R = np.array([[3796.19, 0.0, 0.0], [0.0, 2500.0, 2900.0], [1000.0, -3000.0, 2000.0]])
+    a = pi.footprint(km, R, V0)
+    b = pi.footprint(metres, R * 1e3, V0, area=F.ODYSSEY_AREA_KM2 * 1e6, H=pi.scale_height() * 1e3)
+    assert np.array_equal(a.spectrum, b.spectrum) and np.array_equal(a.cell, b.cell)
+    np.testing.assert_allclose(b.solid_angle, a.solid_angle, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(b.airmass, a.airmass, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(b.distance, a.distance * 1e3, rtol=1e-12, atol=0)
+    assert np.isfinite(a.airmass).all() and np.max(a.airmass) < 23            # not 612
+    # (not "secant": sec z at 89.96 deg turns the zenith angles' rounding, 1e-15 rad, into 5e-12)
+    np.testing.assert_allclose(pi.footprint(metres, R * 1e3, V0, area=3.4e-3, airmass_model="hardie").airmass,
+                               pi.footprint(km, R, V0, airmass_model="hardie").airmass, rtol=1e-12, atol=0)
+
+
+def test_airmass_scale_height_and_orbit_study_km_defaults(metres):
+    z = np.array([0.0, 60.0, 89.0])
+    with pytest.raises(ValueError, match=r"^H: R reaches 3\.3895e\+06, too large to be kilometres"):
+        pi.airmass(z, R=3389.5e3)
+    np.testing.assert_allclose(pi.airmass(z, R=3389.5e3, H=pi.scale_height() * 1e3), pi.airmass(z),
+                               rtol=1e-12, atol=0)
+    assert np.isfinite(pi.airmass(z, R=3389.5e3, model="secant")).all()      # H not used
+    with pytest.raises(ValueError, match=r"^r = 3\.3895e\+06 is too large to be kilometres of Mars"):
+        pi.scale_height(r=3389.5e3)
+    assert math.isfinite(pi.scale_height(r=3389.5e3, GM=4.28e4))              # explicit: as given
+    with pytest.raises(ValueError, match=r"^cells: the DEM's largest cell radius is 3\.39619e\+06"):
+        F.orbit_study(metres, n=3)
+
+
 # ---------------------------------------------------------------------------- finding 2: v message
 def test_radial_velocity_message_shows_the_values_given(km):
     """It showed v[0] = [0.85 0. 0.], the internal power-of-two rescaling of [3.4, 0, 0]."""

@@ -39,7 +39,7 @@ __all__ = [
     "position_angle", "position_angle_notes", "visible_cap_area", "keplerian_states", "orbit_study",
     "OrbitStudy", "plot_orbit_study", "plot_footprint_map", "FOOTPRINT_STATUS",
     "MARS_GM", "MARS_CO2_MOLECULAR_MASS", "MARS_ROTATION_RATE", "MARS_MEAN_RADIUS_KM", "BOLTZMANN", "AMU",
-    "ODYSSEY_AREA_KM2", "HARDIE_PEAK_DEG", "HARDIE_PEAK_AIRMASS",
+    "ODYSSEY_AREA_KM2", "HARDIE_PEAK_DEG", "HARDIE_PEAK_AIRMASS", "KM_RADIUS_MAX",
 ]
 
 #: Mars GM, km^3/s^2 (GGM1025A, the gravity field of ../shared/data's areoid)
@@ -56,6 +56,10 @@ BOLTZMANN = 1.380649e-23
 AMU = 1.66053906660e-27
 #: the notes' GRS detector cross-section, 34 cm^2, in km^2
 ODYSSEY_AREA_KM2 = 3.4e-9
+
+#: radii (of a DEM, or R of the air mass) above this cannot be kilometres of any body these notes
+#: concern (Jupiter's equatorial radius is 71,492 km): the km defaults (area, H) are refused [note 19]
+KM_RADIUS_MAX = 1e5
 
 #: per-spectrum status codes of the Fortran footprint kernel (pi_footprint)
 FOOTPRINT_STATUS = {0: "ok", 1: "spacecraft position NaN/Inf or zero", 2: "spacecraft not above the highest cell",
@@ -698,7 +702,8 @@ def scale_height(T: float = 210.0, r: float = MARS_MEAN_RADIUS_KM, GM: float = M
     radius where g is taken, default the Mars mean radius 3389.5 km); GM in
     km^3/s^2 (default Mars, GGM1025A); molecular_mass in atomic mass units
     (default 43.34, the mean of Mars' CO2-dominated atmosphere). Mars defaults
-    give H = 10.8 km at 210 K.
+    give H = 10.8 km at 210 K. An r above 1e5 with the default GM cannot be
+    km of Mars (a radius in metres) and is refused (docs/grs-notes.md, note 19).
     """
     T = _real(T, "T", lo=0.0, lo_open=True)
     r = _real(r, "r", lo=0.0, lo_open=True)
@@ -711,6 +716,11 @@ def scale_height(T: float = 210.0, r: float = MARS_MEAN_RADIUS_KM, GM: float = M
         # r = 1e160 overflowed, GM = 1e-300 divided by zero, GM = 1e308 gave 0 (a review)
         raise ValueError(f"scale_height: T = {T:g} K, r = {r:g} km, GM = {GM:g} km^3/s^2, molecular_mass = "
                          f"{molecular_mass:g} give no finite positive scale height")
+    if r > KM_RADIUS_MAX and GM == MARS_GM:
+        # r in metres with Mars's GM in km^3/s^2 gave H 1e6 too large [note 19]
+        raise ValueError(f"r = {r:g} is too large to be kilometres of Mars (above {KM_RADIUS_MAX:g} km): "
+                         f"scale_height takes r in km with the default GM (km^3/s^2) and returns km; "
+                         f"pass r in km (times 1000 the result for metres), or give GM too")
     return float(H)
 
 
@@ -823,9 +833,12 @@ def airmass(z_deg, H: float | None = None, R: float | np.ndarray | None = None, 
       (``HARDIE_PEAK_AIRMASS``); beyond it the formula falls (0 at 88.36 deg, -2.5e7 at
       89.98 deg) and the value is NaN, as at and beyond 90 deg (docs/grs-notes.md, note 20).
     * "chapman": exact for a spherically stratified exponential atmosphere of
-      scale height H (km) above radius R (km), valid from 0 to 180 deg
-      (:func:`chapman` with x = R/H). H defaults to :func:`scale_height` (Mars,
-      210 K), R to the Mars mean radius.
+      scale height H above radius R (the same unit; km for the defaults), valid
+      from 0 to 180 deg (:func:`chapman` with x = R/H). H defaults to
+      :func:`scale_height` (Mars, 210 K, 10.8 km), R to the Mars mean radius
+      (3389.5 km). The default H is refused (ValueError naming H) when R
+      exceeds 1e5, which cannot be km of any body the notes concern: pass H in
+      R's unit (docs/grs-notes.md, note 19).
 
     H and R are the Chapman model's: the other models do not use them (the
     signature is one for all models, DESIGN section 10; a review asked).
@@ -834,7 +847,8 @@ def airmass(z_deg, H: float | None = None, R: float | np.ndarray | None = None, 
         raise ValueError(f"model must be one of {', '.join(_AIRMASS_MODELS)}, got {model!r}")
     z = _angles(z_deg, "z_deg", 180.0, lo=0.0)
     if model == "chapman":
-        H = scale_height() if H is None else _real(H, "H", lo=0.0, lo_open=True)
+        if H is not None:
+            H = _real(H, "H", lo=0.0, lo_open=True)
         if R is None:
             R = MARS_MEAN_RADIUS_KM
         if np.iscomplexobj(R):
@@ -842,6 +856,10 @@ def airmass(z_deg, H: float | None = None, R: float | np.ndarray | None = None, 
         R = np.asarray(R, dtype=np.float64)
         if not (np.isfinite(R).all() and (R > 0).all()):
             raise ValueError("R: radii must be positive and finite")
+        if H is None:
+            # the default H is in km: R beyond any body's km radius is in another unit [note 19]
+            _km_defaults(float(np.max(R)) if R.size else 0.0, "R", False, True)
+            H = scale_height()
         with np.errstate(over="ignore"):
             x = R / H
         if not np.isfinite(x).all():
@@ -1230,7 +1248,42 @@ def _raise_status(stat, status, R, cells):
         raise ValueError(f"R[{k}] = {R[k]}: {FOOTPRINT_STATUS.get(int(status[k]), status[k])}")
 
 
-def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta: float | None = None,
+class _DefaultFloat(float):
+    """A float default whose identity marks "not given" (area=None stays refused, the signature
+    still shows the number): the km default can then be refused where it cannot apply [note 19]."""
+
+    def __repr__(self) -> str:
+        return float.__repr__(self)
+
+
+_AREA_DEFAULT = _DefaultFloat(ODYSSEY_AREA_KM2)
+
+
+def _km_defaults(radius: float, where: str, area_default: bool, h_default: bool) -> None:
+    """ValueError when a km default would be applied to lengths that cannot be km [note 19].
+
+    ``radius``: the largest radius of the user's lengths (the cell table's largest cell radius, or
+    the largest R of :func:`airmass`); ``area_default``/``h_default``: the user relies on the
+    default ``area`` (3.4e-9 km^2) or scale height H (:func:`scale_height`, 10.8 km)."""
+    if not radius > KM_RADIUS_MAX or not (area_default or h_default):
+        return
+    names, what = [], []
+    if area_default:
+        names.append("area")
+        what.append(f"area (default {ODYSSEY_AREA_KM2:g} km^2, the GRS's 34 cm^2; in metres area=3.4e-3)")
+    if h_default:
+        names.append("H")
+        what.append(f"H (default scale_height() = {scale_height():.4g} km; in metres H={1e3 * scale_height():.5g})")
+    raise ValueError(
+        f"{' and '.join(names)}: {where} reaches {radius:.6g}, too large to be kilometres (no body these "
+        f"notes concern has a radius above {KM_RADIUS_MAX:g} km), so the km default"
+        f"{'s' if len(names) > 1 else ''} of {' and '.join(what)} would be wrong by powers of 1000: pass "
+        f"{' and '.join(names)} in the same unit as the radii (explicit values are taken as given"
+        + ("; or airmass_model=None or 'secant', 'hardie', 'notes', which do not use H" if h_default
+           and where.startswith("the DEM") else "") + "; docs/grs-notes.md, note 19)")
+
+
+def footprint(cells: CellTable, R, v=None, area: float = _AREA_DEFAULT, zeta: float | None = None,
               flux_fraction: float | None = None, occlusion: bool = False, airmass_model: str | None = "chapman",
               H: float | None = None, threads: int | None = None, occlusion_tol: float | None = None,
               progress=None, out: FootprintResult | None = None) -> FootprintResult:
@@ -1248,7 +1301,10 @@ def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta:
         nadir angle less 90 deg) and is given with or without v.
     area : float
         The detector's projected area A in DEM units squared (default the
-        notes' 34 cm^2 = 3.4e-9 km^2): solid angle = A/|d|^2.
+        notes' 34 cm^2 = 3.4e-9 km^2, for a DEM in km): solid angle = A/|d|^2.
+        A DEM whose radii exceed 1e5 (``KM_RADIUS_MAX``) cannot be in km: there
+        the default is refused (ValueError naming ``area``) and area must be
+        given in the DEM's unit squared (3.4e-3 for metres) [note 19].
     zeta : float, optional
         Footprint cone: cells with cos psi >= zeta (psi the nadir angle),
         within [-1, 1]. Default (and zeta <= 0): every cell above its horizon.
@@ -1270,6 +1326,11 @@ def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta:
         Model of ``fp.airmass`` (computed on first access) with the zenith angle
         ``zenith_centric``, the scale height H (default :func:`scale_height`)
         and the cell's radius.
+    H : float, optional
+        The Chapman model's scale height, in the DEM's unit (default
+        :func:`scale_height`, 10.8 km, for a DEM in km; refused like ``area``'s
+        default for a DEM whose radii exceed 1e5: pass H, e.g. 1.0807e4 for
+        metres, or a model that does not use it) [note 19].
     threads : int, optional
         OpenMP threads over the spectra (None or 0: all cores); results are
         bit-identical for any count.
@@ -1300,6 +1361,7 @@ def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta:
     R = _vectors(R, "R")
     _nonzero(R, "R")
     _check_above_surface(cells, R)
+    area_default = area is _AREA_DEFAULT
     area = _real(area, "area", lo=0.0, lo_open=True)
     if zeta is not None and flux_fraction is not None:
         raise ValueError("give zeta or flux_fraction, not both")
@@ -1307,6 +1369,10 @@ def footprint(cells: CellTable, R, v=None, area: float = ODYSSEY_AREA_KM2, zeta:
         raise ValueError(f"airmass_model must be one of {', '.join(_AIRMASS_MODELS)} or None, got {airmass_model!r}")
     if H is not None:
         H = _real(H, "H", lo=0.0, lo_open=True)
+    # km defaults on a DEM that cannot be in km (metres: solid angles 1e6 too small, air
+    # masses up to 612; a walk-through) [note 19]
+    _km_defaults(cells.radius_range[1], "the DEM's largest cell radius", area_default,
+                 airmass_model == "chapman" and H is None)
     if not isinstance(occlusion, (bool, np.bool_)):
         # "no" was taken as True (a review)
         raise TypeError(f"occlusion must be True or False, got {occlusion!r}")
@@ -1565,6 +1631,11 @@ def orbit_study(cells: CellTable | None = None, periapsis_alt: float = 387.0, ap
     sphere of ``radius`` (a cell at a fixed ground offset, e.g. across track):
     ``psi = atan2(r sin theta, |R| - r cos theta)``.
     """
+    if cells is not None and cells.radius_range[1] > KM_RADIUS_MAX:
+        # the orbit is in km (Mars's GM in km^3/s^2, radius and altitudes in km) [note 19]
+        raise ValueError(f"cells: the DEM's largest cell radius is {cells.radius_range[1]:.6g}, too large to be "
+                         f"kilometres; orbit_study computes its orbit in km (radius, altitudes and Mars's GM): "
+                         f"give it the cells of a DEM in km")
     rp, ra = radius + periapsis_alt, radius + apoapsis_alt
     a = 0.5 * (rp + ra)
     period = 2 * math.pi * math.sqrt(a ** 3 / MARS_GM)
