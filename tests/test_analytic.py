@@ -68,7 +68,7 @@ def test_irregular_body_reduces_to_spherical_tangent():
     """f = 0, re = 1 (Table 1 for irregular bodies): tc = t and the altitude is |t| - r_DEM."""
     rng = np.random.default_rng(4)
     radii = 11.0 + rng.uniform(-1, 1, (180, 360))
-    dem = pi.DEM.from_array(radii, f=0.0, re=1.0)
+    dem = pi.DEM.from_array(radii, f=0.0)   # no re: no spheroid
     u = random_unit(rng, 2000)
     e = perpendicular_unit(rng, u)
     s = u * rng.uniform(dem.rmax + 0.5, dem.rmax + 20, 2000)[:, None] - e * 60

@@ -87,7 +87,7 @@ def test_examples_and_import_mola_commands(tmp_path):
     r = run_cli("import-mola", tmp_path / "mola4", "--radius", src)
     assert r.returncode == 0 and "mola4.hdr" in r.stdout
     r = run_cli("import-mola", tmp_path / "mola4", "--radius", src)
-    assert r.returncode == 2 and "exists; pass overwrite=True" in r.stderr
+    assert r.returncode == 2 and "exists; give --overwrite to replace it" in r.stderr
     r = run_cli("examples", "olympus", "--dem", tmp_path / "mola4.hdr", "--out", tmp_path / "ex")
     assert r.returncode == 0, r.stderr
     assert "10201 of 10201 pixels on the surface" in r.stdout

@@ -112,3 +112,37 @@ def test_footprint_cli_states_file_faults(small, tmp_path):
     assert r.returncode == 0, r.stderr
     table = np.genfromtxt(tmp_path / "g" / "run-001" / "footprint.csv", delimiter=",", names=True)
     assert set(table["spectrum"].astype(int)) == {0, 1, 2}
+
+
+def test_footprint_cli_on_a_dem_in_metres(small, tmp_path):
+    """A DEM in metres with the km defaults of --area and H is refused, naming them (a walk-through
+    saw solid angles 1e6 too small and air masses up to 612); with both in metres the pairs equal
+    the km DEM's, solid angles to 1e-12 and air masses to 1e-12 relative (grs-notes 19)."""
+    pytest.importorskip("xarray")
+    d, hdr, states, R, v = small
+    dem = pi.DEM.read(hdr)
+    hdr_m = pi.DEM.from_array(np.asarray(dem.radii, dtype=np.float64) * 1000.0, f=0.0, re=3390.0e3).write(
+        tmp_path / "small_m")
+    states_m = tmp_path / "states_m.csv"
+    t = np.arange(0.0, 200.0, 20.0)
+    np.savetxt(states_m, np.column_stack([t, R * 1000.0, v * 1000.0]), delimiter=",",
+               header="time,x,y,z,vx,vy,vz", comments="")
+    r = run_cli("footprint", "--states", states_m, "--dem", hdr_m, "--cell-deg", "1", "--out", tmp_path / "o")
+    assert r.returncode == 2 and "area and H:" in r.stderr and "too large to be kilometres" in r.stderr, r.stderr
+    H = F.scale_height()
+    r = run_cli("footprint", "--states", states_m, "--dem", hdr_m, "--cell-deg", "1", "--area", 3.4e-3,
+                "--scale-height", H * 1000.0, "--out", tmp_path / "o")
+    assert r.returncode == 0, r.stderr
+    r_km = run_cli("footprint", "--states", states, "--dem", hdr, "--cell-deg", "1", "--out", tmp_path / "k")
+    assert r_km.returncode == 0, r_km.stderr
+    m = np.genfromtxt(tmp_path / "o" / "run-001" / "footprint.csv", delimiter=",", names=True)
+    k = np.genfromtxt(tmp_path / "k" / "run-001" / "footprint.csv", delimiter=",", names=True)
+    assert np.array_equal(m["cell"], k["cell"]) and np.array_equal(m["spectrum"], k["spectrum"])
+    assert np.allclose(m["solid_angle"], k["solid_angle"], rtol=1e-9, atol=0)   # (CSV: 10 digits)
+    assert np.allclose(m["airmass"], k["airmass"], rtol=1e-9, atol=0, equal_nan=True)
+    import xarray as xr
+
+    with xr.open_dataset(tmp_path / "k" / "run-001" / "footprint.nc", engine="h5netcdf") as ds:
+        assert ds["distance"].attrs["units"] == "km" and ds["solid_angle"].attrs["units"] == "sr"
+    with xr.open_dataset(tmp_path / "o" / "run-001" / "footprint.nc", engine="h5netcdf") as ds:
+        assert ds["distance"].attrs["units"] != "km"

@@ -311,7 +311,7 @@ def test_directory_fifo_and_symlink_loop_are_named(tmp_path):
 def test_irregular_body_has_no_spheroid_quantities():
     """f = 0, re = 1 means no spheroid (Table 1): sc and the height above it are
     NaN, as altitude is; the altitude above the DEM is |tc| - r there."""
-    dem = pi.DEM.from_array(np.full((180, 360), 20.0), f=0.0, re=1.0)
+    dem = pi.DEM.from_array(np.full((180, 360), 20.0), f=0.0)   # no re: no spheroid
     res = pi.intersect(dem, [100.0, 0, 0], [[-1.0, 0.3, 0.0], [-1.0, 0.0, 0.0]])
     limb, hit = 0, 1
     assert res.status[limb] == RayStatus.LIMB and res.hit[hit]

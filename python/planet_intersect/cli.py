@@ -334,7 +334,8 @@ def _example_dem(args):
         Path(os.environ.get("PI_SHARED_DATA", "../shared/data")) / "mars_mola_megdr_4ppd" /
         "mars_radius_4ppd_megt_plus_areoid.i2be")
     if not path.exists():
-        raise CLIError(f"no Mars DEM: {path} is missing; give --dem NAME.hdr or --mola MEGDR.img "
+        raise CLIError(f"no Mars DEM: {path} is missing (looked for relative to {Path.cwd()}; set "
+                       f"PI_SHARED_DATA to the shared data folder); give --dem NAME.hdr or --mola MEGDR.img "
                        f"(planet-intersect fetch-mola DEST downloads one)")
     return mola_dem(path), str(path)
 
@@ -374,8 +375,11 @@ def _import_mola(args) -> int:
 
     if bool(args.radius) == bool(args.topography):
         raise CLIError("give --radius IMG, or --topography IMG with --areoid IMG")
-    hdr = import_mola(args.out, radius=args.radius, topography=args.topography, areoid=args.areoid,
-                      overwrite=args.overwrite)
+    try:
+        hdr = import_mola(args.out, radius=args.radius, topography=args.topography, areoid=args.areoid,
+                          overwrite=args.overwrite)
+    except FileExistsError as exc:                 # (the library's advice names its Python argument)
+        raise CLIError(str(exc).replace("pass overwrite=True", "give --overwrite")) from None
     print(f"wrote {hdr} and {hdr.with_suffix('.dem')}")
     return 0
 
@@ -490,8 +494,11 @@ def _footprint(args) -> int:
     parts = []
     t0 = time.perf_counter()
     for a in range(0, n, chunk):
-        parts.append(footprint(cells, R[a:a + chunk], v[a:a + chunk], area=args.area, zeta=args.zeta,
-                               flux_fraction=args.flux_fraction, occlusion=args.occlusion, threads=args.threads))
+        parts.append(footprint(cells, R[a:a + chunk], v[a:a + chunk], zeta=args.zeta,
+                               flux_fraction=args.flux_fraction, occlusion=args.occlusion, threads=args.threads,
+                               airmass_model=args.airmass_model, H=args.scale_height,
+                               # (only when given: the km default is refused for a DEM in metres, grs-notes 19)
+                               **({"area": args.area} if args.area is not None else {})))
         bar(min(a + chunk, n))
     fp = _concat_footprints(parts, chunk)
     elapsed = time.perf_counter() - t0
@@ -504,7 +511,9 @@ def _footprint(args) -> int:
     np.savetxt(out / "footprint.csv", table, delimiter=",", header=",".join(names), comments="", fmt=fmt)
     written.append(out / "footprint.csv")
     try:
-        ds = fp.to_xarray()
+        # lengths in km where the DEM's radii can be km (grs-notes 19), else the DEM's own unit
+        km = float(cells.radius_range[1]) <= fpm.KM_RADIUS_MAX
+        ds = fp.to_xarray(length_unit="km" if km else None)
         ds["R"] = (("spectrum", "xyz"), R)
         ds["v"] = (("spectrum", "xyz"), v)
         if t is not None:
@@ -588,12 +597,18 @@ def _add_footprint_parser(sub) -> None:
     g.add_argument("--observer", default="MARS", help="SPICE observer (default MARS)")
     g.add_argument("--frame", default="IAU_MARS", help="SPICE frame (default IAU_MARS)")
     g.add_argument("--abcorr", default="NONE", help="SPICE aberration correction (default NONE)")
-    g.add_argument("--dem", help="DEM NAME.hdr in km (default: the MOLA grid in $PI_SHARED_DATA or ../shared/data)")
+    g.add_argument("--dem", help="DEM NAME.hdr in km (default: the MOLA grid in $PI_SHARED_DATA, or in "
+                                 "../shared/data relative to the current folder)")
     g.add_argument("--mola", help="a MEGDR radius grid to use instead")
     g.add_argument("--cell-deg", type=float, default=0.5, help="cell size in degrees, dividing 180 (default 0.5)")
     g.add_argument("--zeta", type=float, help="footprint cone cos(psi) >= ZETA (default: every cell above the horizon)")
     g.add_argument("--flux-fraction", type=float, help="instead of --zeta: the cone holding this fraction of the flux")
-    g.add_argument("--area", type=float, default=3.4e-9, help="detector area in km^2 (default 3.4e-9, 34 cm^2)")
+    g.add_argument("--area", type=float, default=None,
+                   help="detector area in the DEM's unit squared (default 3.4e-9 km^2, 34 cm^2, for a DEM in km)")
+    g.add_argument("--airmass-model", choices=("chapman", "hardie", "notes", "secant"), default="chapman",
+                   help="air mass of each pair (default chapman)")
+    g.add_argument("--scale-height", type=float, default=None,
+                   help="chapman's scale height H in the DEM's unit (default 10.8 km: Mars at 210 K)")
     g.add_argument("--occlusion", action="store_true", help="also remove cells hidden by terrain (exact ray casting)")
     g.add_argument("--color", choices=("solid_angle", "emission"), default="solid_angle", help="map colouring")
     g.add_argument("--threads", type=int, default=0, help="OpenMP threads (default 0: all cores)")
@@ -943,7 +958,8 @@ def _parser() -> argparse.ArgumentParser:
     r.set_defaults(func=_run)
     e = sub.add_parser("examples", help="the paper's Mars examples: olympus (Fig. 8) or limb (Fig. 9), on MOLA")
     e.add_argument("which", choices=("olympus", "limb"))
-    e.add_argument("--dem", help="a Mars DEM NAME.hdr in km (default: the MOLA grid in $PI_SHARED_DATA or ../shared/data)")
+    e.add_argument("--dem", help="a Mars DEM NAME.hdr in km (default: the MOLA grid in $PI_SHARED_DATA, or in "
+                                 "../shared/data relative to the current folder)")
     e.add_argument("--mola", help="a MEGDR radius grid (megr*.img style) to use instead")
     e.add_argument("--out", default="examples-output",
                    help="results go to a new run-NNN folder here (default: examples-output)")

@@ -14,6 +14,7 @@ import math
 import os
 import re
 import stat
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -79,7 +80,7 @@ def read_header(hdr: str | os.PathLike) -> dict:
 
     The grammar (docs/dem-format.md; the Fortran reader ``pi_dem::dem_read_header``
     implements the same one, and tests feed both the same headers): the file is
-    bytes, at most 1,000,000; lines end at LF, CR or CRLF; space and tab are the
+    bytes, at most 999,999; lines end at LF, CR or CRLF; space and tab are the
     only white space. Blank lines and lines starting with ``#`` or ``!`` are
     skipped. The first four other lines hold the values of the paper's Table 1,
     ppd (``[+-]`` and 1-9 digits), rmax, f, re (decimal reals: digits with an
@@ -139,6 +140,11 @@ def _real(value, name: str, where: str) -> float:
     return float(value)
 
 
+#: how far the reference spheroid's re may be from the DEM's rmax (a factor; re = 1, Table 1's
+#: placeholder, is exempt: with f = 0 it is the "no spheroid" setting, and the format allows it with any f)
+RE_RATIO_MAX = 10.0
+
+
 def _check_parameters(ppd, rmax, f, re, where):
     if not 1 <= ppd <= MAX_PPD:
         raise DEMError(f"{where}: ppd must be in 1..{MAX_PPD}, got {ppd}")
@@ -148,6 +154,12 @@ def _check_parameters(ppd, rmax, f, re, where):
         raise DEMError(f"{where}: flattening f must be in [0, 1), got {f}")
     if not (RADIUS_MIN <= re <= RADIUS_MAX):
         raise DEMError(f"{where}: equatorial radius re must be in [{RADIUS_MIN:g}, {RADIUS_MAX:g}], got {re}")
+    if re != 1.0 and not (rmax / RE_RATIO_MAX <= re <= RE_RATIO_MAX * rmax):
+        # re in metres over radii in km gave altitudes of -1.7e6 km without a word (a walk-through);
+        # rmax was checked against the radii, re against nothing
+        raise DEMError(f"{where}: equatorial radius re = {re:g} is not within a factor {RE_RATIO_MAX:g} of "
+                       f"rmax = {rmax:g}: the reference spheroid and the radii must be in one unit (re = 1, "
+                       f"Table 1's placeholder, is exempt; with f = 0 it means 'no spheroid')")
 
 
 def _check_rmax_tight(rmax: float, top: float, where: str) -> None:
@@ -240,7 +252,7 @@ class DEM:
 
     def __init__(self, radii: np.ndarray, ppd: int, rmax: float, f: float, re: float, path: Path | None = None,
                  header: dict | None = None):
-        self.radii = radii
+        self._radii = radii
         self.ppd = int(ppd)
         self.rmax = float(rmax)
         self.f = float(f)
@@ -253,6 +265,18 @@ class DEM:
         self._radii64 = None
         self._pyramid = None
         self._map_poles = None
+
+    @property
+    def radii(self) -> np.ndarray:
+        """The radii ``[nlat, nlon]`` (read-only; a memory map for a file-backed DEM).
+
+        A file-backed DEM checks its ``.dem`` file first (:meth:`check_file`):
+        reading the map of a file truncated since :meth:`read` killed the process
+        with SIGBUS (a walk-through: ``dem.radii.max()``); it is a
+        :class:`DEMError` now. An array taken from here earlier and kept is the
+        map itself: read the DEM again after its file changes."""
+        self.check_file()
+        return self._radii
 
     # the file behind a DEM ---------------------------------------------------------
     def _file_identity(self):
@@ -280,8 +304,8 @@ class DEM:
         """(ppd, rmax, f, re, itemsize, swap) of a file-backed DEM as Python parsed
         them, for the Fortran core's file routines (one header parser for both
         storage modes)."""
-        itemsize = self.radii.dtype.itemsize
-        swap = int(not self.radii.dtype.isnative)
+        itemsize = self._radii.dtype.itemsize              # (no file check: only the header's values)
+        swap = int(not self._radii.dtype.isnative)
         return self.ppd, self.rmax, self.f, self.re, itemsize, swap
 
     # construction -----------------------------------------------------------------
@@ -322,18 +346,32 @@ class DEM:
         return out
 
     @classmethod
-    def from_array(cls, radii, f: float = 0.0, re: float = 1.0, rmax: float | None = None) -> "DEM":
+    def from_array(cls, radii, f: float = 0.0, re: float | None = None, rmax: float | None = None) -> "DEM":
         """A DEM in memory from ``radii[nlat, nlon]`` (row 0 south).
 
         ``ppd`` follows from the shape (``nlat = 180 ppd``, ``nlon = 360 ppd``);
-        ``rmax`` defaults to the largest radius. The DEM keeps a private,
+        ``rmax`` defaults to the largest radius. ``f``, ``re``: the reference
+        spheroid (flattening, equatorial radius in the radii's unit, within a
+        factor 10 of rmax). Without ``re`` the DEM has none: Table 1's "no
+        spheroid" setting of an irregular body (stored as f = 0, re = 1), for
+        which ``altitude``, ``sc`` and ``tangent_height`` are NaN
+        (paper-notes 20); ``re=1.0`` with ``f=0`` given explicitly means the
+        same and warns, since a DEM in units of the body's radius would want a
+        unit sphere (scale the radii, e.g. to km, for one). The DEM keeps a private,
         read-only copy of the radii (float32 stays float32, other real or
         integer types become float64): changing the caller's array afterwards
         does not change the DEM.
         """
         where = "DEM.from_array"
         f = _real(f, "f", where)
-        re_ = _real(re, "re", where)
+        if re is None:
+            re_ = 1.0                                    # no spheroid with f = 0 (Table 1's f = 0, re = 1)
+        else:
+            re_ = _real(re, "re", where)
+            if f == 0.0 and re_ == 1.0:
+                warnings.warn(f"{where}: f = 0 with re = 1 is Table 1's 'no spheroid' setting: altitude, sc and "
+                              f"tangent_height will be NaN (leave re out to say so without this warning)",
+                              UserWarning, stacklevel=2)
         if rmax is not None:
             rmax = _real(rmax, "rmax", where)
         try:

@@ -25,7 +25,7 @@ import numpy as np
 
 from ._status import DSM_RAY_STATUS, DSMError, DSMStatus
 from .geodetic import WGS84_A, WGS84_F, _wrap180, check_ellipsoid, ecef_to_geodetic
-from .intersect import RayTable
+from .intersect import RayTable, document_fields
 
 __all__ = ["GeodeticDSM", "DSMResult", "DSMError", "DSMStatus", "DSM_RAY_STATUS", "intersect_dsm"]
 
@@ -639,6 +639,9 @@ class DSMResult(RayTable):
     @staticmethod
     def _status_items():
         return DSM_RAY_STATUS.items()
+
+
+DSMResult = document_fields(DSMResult)
 
 
 def _empty_result() -> "DSMResult":

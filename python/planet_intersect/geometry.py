@@ -61,6 +61,13 @@ def detector_los(l0, q, nh: int, nv: int, dh: float, dv: float) -> np.ndarray:
     dh, dv = _spacing(dh, "dh"), _spacing(dv, "dv")
     if nh * nv > 50_000_000:
         raise ValueError(f"nh x nv = {nh * nv} pixels: at most 50,000,000 in one call (1.2 GB of directions)")
+    for n, d, name in ((nh, dh, "dh"), (nv, dv, "dv")):
+        # beyond pi/2 from the centre eq. 18's sin() folds the pixels back onto ones nearer it (a
+        # walk-through gave dh = 0.86, degrees meant, to 101 pixels: a field of 86 radians)
+        if 0.5 * (n - 1) * d > 0.5 * np.pi:
+            raise ValueError(f"{name} = {d:g} rad over {n} pixels: the field reaches {0.5 * (n - 1) * d:.4g} rad "
+                             f"from l0, beyond pi/2, where eq. 18's sin() repeats directions (degrees given "
+                             f"as radians?)")
     h = np.cross(l0, q)
     hn = np.linalg.norm(h)
     if hn < 1e-12:
@@ -77,22 +84,52 @@ def detector_los(l0, q, nh: int, nv: int, dh: float, dv: float) -> np.ndarray:
     return los.reshape(nv * nh, 3)
 
 
+def _spheroid(f, re, where: str) -> tuple[float, float]:
+    """(f, re) checked: 0 <= f < 1, re finite and > 0 (ValueError naming them)."""
+    try:
+        f, re = float(f), float(re)
+    except (TypeError, ValueError):
+        raise TypeError(f"{where}: f and re must be real numbers, got {f!r}, {re!r}") from None
+    if not (np.isfinite(f) and 0.0 <= f < 1.0):
+        raise ValueError(f"{where}: flattening f must be in [0, 1), got {f}")
+    if not (np.isfinite(re) and re > 0.0):
+        raise ValueError(f"{where}: equatorial radius re must be finite and > 0, got {re}")
+    return f, re
+
+
 def spheroid_radius(lat_deg, f: float, re: float) -> np.ndarray:
-    """Radius of the spheroid (f, re) at planetocentric latitude, eq. 61."""
+    """Radius of the spheroid (f, re) at planetocentric latitude, eq. 61.
+
+    ``lat_deg`` within [-90, 90], ``0 <= f < 1``, ``re > 0`` (ValueError otherwise:
+    95 degrees gave the radius at 85, f = 2 a sphere, and a negative re a positive radius)."""
+    f, re = _spheroid(f, re, "spheroid_radius")
+    lat = np.asarray(lat_deg, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        bad = ~(np.abs(lat) <= 90.0)
+    if bad.any():
+        raise ValueError(f"spheroid_radius: lat_deg must be finite and within [-90, 90], got "
+                         f"{float(lat.reshape(-1)[int(np.argmax(bad.reshape(-1)))])!r}")
+    lat_deg = lat
     e2 = f * (2.0 - f)
     c = np.cos(np.radians(lat_deg))
     return np.sqrt(re * re * (1.0 - e2) / (1.0 - e2 * c * c))
 
 
 def ray_spheroid_intersection(s, l, f: float, re: float):
-    """First intersection of rays ``s + d l`` (d >= 0) with the spheroid; NaN where none.
+    """Where rays ``s + d l`` (d >= 0) enter the spheroid; NaN where they do not.
 
     Closed form: substitute the ray into eq. 49 and solve the quadratic in d.
-    Returns ``(points (N,3), d (N,))``.
+    Returns ``(points (N,3), d (N,))``. A ray from inside the spheroid does not
+    enter it and gets NaN (its exit is the quadratic's other root). ``l`` must
+    be non-zero and finite, ``0 <= f < 1``, ``re > 0`` (ValueError otherwise).
     """
+    f, re = _spheroid(f, re, "ray_spheroid_intersection")
     s = np.atleast_2d(np.asarray(s, dtype=np.float64))
     l = np.atleast_2d(np.asarray(l, dtype=np.float64))
-    l = l / np.linalg.norm(l, axis=1, keepdims=True)
+    ln = np.linalg.norm(l, axis=1, keepdims=True)
+    if not (np.isfinite(ln).all() and (ln > 0).all()):
+        raise ValueError("ray_spheroid_intersection: l must be non-zero and finite")
+    l = l / ln
     w2 = 1.0 / (1.0 - f) ** 2
     scale = np.array([1.0, 1.0, w2])
     a = np.sum(l * l * scale, axis=1)

@@ -8,6 +8,7 @@ vectors, and turns the core's status codes into exceptions.
 from __future__ import annotations
 
 import os
+import re
 import warnings
 from dataclasses import dataclass, fields
 
@@ -30,6 +31,8 @@ class RayTable:
     _status_items()."""
 
     ANGLES = ""
+    #: field name -> what it is (the class docstring's Attributes and to_xarray's long_name)
+    FIELD_DOCS: dict = {}
 
     @staticmethod
     def _status_items():
@@ -47,6 +50,9 @@ class RayTable:
             value = getattr(self, fld.name)
             data[fld.name] = (("ray", "xyz") if value.ndim == 2 else ("ray",), value)
         ds = xr.Dataset(data, coords={"ray": np.arange(len(self)), "xyz": ["x", "y", "z"]})
+        for name, doc in self.FIELD_DOCS.items():          # what each variable is (a walk-through)
+            if name in ds:
+                ds[name].attrs["long_name"] = doc
         ds.attrs["status_codes"] = "; ".join(f"{k}: {v}" for k, v in self._status_items())
         ds.attrs["angles"] = self.ANGLES
         return ds
@@ -80,13 +86,13 @@ class IntersectResult(RayTable):
     radius: np.ndarray  #: |p| (eq. 44)
     altitude: np.ndarray  #: radius minus the spheroid radius at lat (eq. 61); NaN without a spheroid
     emission: np.ndarray  #: angle between -l and the spheroid normal at p (eqs. 45, 50)
-    t: np.ndarray  #: spherical tangent point (eq. 20), limb rays
-    tc: np.ndarray  #: tangent point on the line for the spheroid (eq. 57)
-    sc: np.ndarray  #: point on the spheroid below tc
-    tangent_lat: np.ndarray  #: planetocentric latitude of sc (eq. 59)
-    tangent_lon: np.ndarray  #: east longitude of sc (eq. 60)
-    tangent_altitude: np.ndarray  #: height of tc above the local DEM surface (eq. 63)
-    tangent_height: np.ndarray  #: signed distance tc - sc above the spheroid (eq. 58)
+    t: np.ndarray  #: limb rays: the point of the line nearest the planet's centre (spherical tangent point, eq. 20)
+    tc: np.ndarray  #: limb rays: the point of the line nearest the spheroid (its tangent point, eq. 57)
+    sc: np.ndarray  #: limb rays: the point of the spheroid nearest tc, below it; NaN without a spheroid
+    tangent_lat: np.ndarray  #: limb rays: planetocentric latitude of the tangent point (of sc, eq. 59)
+    tangent_lon: np.ndarray  #: limb rays: east longitude of the tangent point (eq. 60)
+    tangent_altitude: np.ndarray  #: limb rays: height of tc above the DEM surface below it (eq. 63)
+    tangent_height: np.ndarray  #: limb rays: signed distance from sc to tc, the line's height above the spheroid (eq. 58); NaN without a spheroid
     status: np.ndarray  #: per-ray code, see :class:`RayStatus`
     nsteps: np.ndarray  #: test points evaluated along each ray
 
@@ -96,6 +102,33 @@ class IntersectResult(RayTable):
     @staticmethod
     def _status_items():
         return _ray_status_items()
+
+
+def document_fields(cls):
+    """Class decorator: the ``#:`` comments of a result dataclass's fields (read from its source)
+    as ``FIELD_DOCS`` and as an Attributes section of its docstring, so that ``help()`` and the
+    NetCDF files say what ``tc``, ``sc`` or ``tangent_height`` are (a walk-through found them
+    explained nowhere a user looks)."""
+    import inspect
+
+    try:
+        src = inspect.getsource(cls)
+    except (OSError, TypeError):                       # no source (frozen): the fields stay undocumented
+        return cls
+    docs = {}
+    for fld in fields(cls):
+        m = re.search(rf"^\s+{fld.name}: [^\n]*?#:\s*(.+)$", src, re.M)
+        if m:
+            docs[fld.name] = m.group(1).strip()
+    cls.FIELD_DOCS = docs
+    if docs and cls.__doc__:
+        width = max(map(len, docs))
+        cls.__doc__ = cls.__doc__.rstrip() + "\n\n    Attributes\n    ----------\n" + "".join(
+            f"    {k:<{width}} : {v}\n" for k, v in docs.items())
+    return cls
+
+
+IntersectResult = document_fields(IntersectResult)
 
 
 def _ray_status_items():
@@ -279,7 +312,11 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
     if not isinstance(dem, DEM):
         raise TypeError(f"dem must be a planet_intersect.DEM or GeodeticDSM, got {type(dem).__name__}")
     if dsm_options:
-        raise TypeError(f"intersect: {sorted(dsm_options)} apply to a GeodeticDSM only")
+        known = sorted(set(dsm_options) & {"outside"})
+        unknown = sorted(set(dsm_options) - {"outside"})
+        if unknown:                                  # (a misspelt stepmode was called a DSM option)
+            raise TypeError(f"intersect: unexpected keyword argument(s) {unknown}")
+        raise TypeError(f"intersect: {known} apply to a GeodeticDSM only")
     if method is None:
         method = "stepping"
     step_mode = _check_mode(step_mode, "step_mode")

@@ -44,7 +44,8 @@ by tests/test_reference.py):
   ``out=`` result gives the same values as fresh memory.
 * ``airmass`` of a finite zenith angle below 90 deg is finite and >= 1
   for every model but "notes"; "secant", "notes", "hardie" are the printed
-  formulas (1e-12 relative); "chapman" equals the reference's quadrature
+  formulas (1e-12 relative), "hardie" up to the peak of its cubic (87.15 deg)
+  and NaN beyond; "chapman" equals the reference's quadrature
   (1e-7 relative, the quadrature's own accuracy at 1e-12 epsrel is better).
 * the spacecraft frame (every method) is orthonormal and right-handed with
   x = R_hat, y along the non-radial velocity; the four methods agree to
@@ -116,7 +117,10 @@ def make_dem(spec: dict):
         if len(_DEMS) > 30:
             _DEMS.clear()
             _CELLS.clear()
-        _DEMS[key] = pi.DEM.from_array(dem_radii(spec), f=spec["f"], re=spec["base"])
+        # a unit body with f = 0 is Table 1's "no spheroid" setting: said by leaving re out (given
+        # explicitly, DEM.from_array warns that it is that setting; grs-notes and paper-notes 20)
+        no_spheroid = spec["f"] == 0.0 and spec["base"] == 1.0
+        _DEMS[key] = pi.DEM.from_array(dem_radii(spec), f=spec["f"], re=None if no_spheroid else spec["base"])
     return _DEMS[key]
 
 
@@ -748,6 +752,17 @@ def op_airmass(case, tmp):
         with np.errstate(all="ignore"):
             want = np.asarray(fn(zz), dtype=np.float64)
         below = zz < 89.9
+        if model == "hardie":
+            # the fit peaks where its derivative in s = sec z - 1 vanishes (found here from the
+            # printed coefficients, np.roots), and is NaN beyond (docs/grs-notes.md, note 20)
+            sp = max(float(t.real) for t in np.roots([-3 * 0.0008083, -2 * 0.002875, 1 - 0.0018167])
+                     if abs(t.imag) == 0 and t.real > 0)
+            zpk = math.degrees(math.acos(1.0 / (1.0 + sp)))
+            past = (zz > zpk * (1 + 1e-12)) & (zz < 90.0)
+            if not np.isnan(x[past]).all():
+                k = int(np.argmax(past & ~np.isnan(x)))
+                _fail(f"airmass({zz[k]}, model='hardie') = {x[k]!r} beyond the fit's peak at {zpk} deg: not NaN")
+            below &= zz < zpk * (1 - 1e-12)
         bad = below & ~(np.abs(x - want) <= 1e-12 * np.abs(want))
         if bad.any():
             k = int(np.argmax(bad))

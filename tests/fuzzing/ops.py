@@ -80,6 +80,10 @@ def dem_kwargs(spec: dict) -> dict:
     for k in ("f", "re", "rmax"):
         if k in spec:
             kw[k] = spec[k]
+    if kw.get("f", 0.0) == 0.0 and kw.get("re") == 1.0:
+        # Table 1's "no spheroid" setting, said by leaving re out: given explicitly, DEM.from_array
+        # warns that it is that setting (paper-notes 20), the same DEM either way
+        del kw["re"]
     return kw
 
 
