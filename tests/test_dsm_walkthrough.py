@@ -201,8 +201,10 @@ def test_cli_run_on_a_dsm_refuses_dem_options_and_counts_every_status(tmp_path, 
     assert main(["run", str(f), str(rays), "--step-mode", "0", "--out", str(tmp_path / "o")]) == 2
     assert "--step-mode: for a planetary DEM only" in capsys.readouterr().err
     assert main(["run", str(f), str(rays), "--method", "exact", "--geoid", "-25", "--out", str(tmp_path / "o")]) == 0
-    out = capsys.readouterr().out
+    captured = capsys.readouterr()
+    out = captured.out
     assert "6 rays (exact over the DSM" in out and "6 hit;" in out
+    assert "matmul" not in captured.err                       # rasterio's own deprecation: no note
     table = np.genfromtxt(tmp_path / "o" / "run-001" / "results.csv", delimiter=",", names=True)
     assert np.allclose(table["height"], 175.0, rtol=0, atol=1e-6)   # roof 200 m - 25 m at every nadir ray
     # the CSV carries the answers to the last bit (10 digits kept ~1 mm of an ECR coordinate)
@@ -230,6 +232,17 @@ def test_cli_run_summary_adds_up_with_the_iterative_methods_failures(tmp_path, c
     line = capsys.readouterr().out.splitlines()[-1]
     counts = [int(w.split()[0]) for w in line.split(": ", 1)[1].split(";")[0].split(", ")]
     assert sum(counts) == 40 and "oscillation" in line, line
+
+
+def test_cli_run_turns_the_readers_warnings_into_notes(tmp_path, capsys):
+    f = tmp_path / "navd88.tif"
+    xc, yc = _utm_city(f, "EPSG:32614+5703", 500000.0, 4300000.0)
+    lon, lat = pyproj.Transformer.from_crs("EPSG:32614", "EPSG:4326", always_xy=True).transform(xc, yc)
+    rays = tmp_path / "rays.txt"
+    _rays_file(rays, _city_rays(lat, lon, n=2))
+    assert main(["run", str(f), str(rays), "--out", str(tmp_path / "o")]) == 0
+    err = capsys.readouterr().err
+    assert err.count("run: note: ") == 1 and "NAVD88 height" in err and "geoid=" in err, err
 
 
 def test_cli_run_refuses_dsm_options_with_a_dem(tmp_path, capsys):

@@ -244,6 +244,13 @@ def intersect_in_chunks(dem, s, l, chunk: int = 200_000, where=None, **kwargs):
     return type(parts[0])(**{k: np.concatenate([getattr(p, k) for p in parts]) for k in parts[0].__dataclass_fields__})
 
 
+def _notes(caught):
+    """The warnings worth a user's one-line note: the package's UserWarnings. Libraries'
+    deprecation warnings (rasterio's PendingDeprecationWarning on every projected read) are
+    not about the user's files."""
+    return [w for w in caught if issubclass(w.category, UserWarning)]
+
+
 #: `run` options of a planetary DEM only (with their defaults) and of a geodetic DSM only
 _DEM_RUN_OPTIONS = {"step_mode": 1, "dem_read_mode": 0, "tangent": "exact", "io": "records"}
 _DSM_RUN_OPTIONS = ("interpolation", "geoid", "nodata", "band", "outside")
@@ -298,7 +305,7 @@ def _run_dsm(args) -> int:
         warnings.simplefilter("always")
         dsm = GeodeticDSM.read(args.dem, band=args.band if args.band is not None else 1, nodata=args.nodata,
                                geoid=geoid, interpolation=args.interpolation)
-    for w in caught:                            # one line each (not a Python warning)
+    for w in _notes(caught):                    # one line each (not a Python warning)
         print(f"run: note: {w.message}", file=sys.stderr)
     if getattr(dsm, "file_bands", 1) > 1 and args.band is None:
         raise CLIError(f"{args.dem}: the file has {dsm.file_bands} bands; a DSM has one band of heights "
@@ -806,7 +813,7 @@ def _simulate(args) -> int:
         warnings.simplefilter("always")
         dsm = GeodeticDSM.read(args.dsm, interpolation=args.interpolation)
         ortho = OrthoImage.read(args.ortho)
-    for w in caught:                            # what the readers say of the files, one line each
+    for w in _notes(caught):                    # what the readers say of the files, one line each
         print(f"simulate: note: {w.message}", file=sys.stderr)
     sensor = _sensor_from_args(args, dsm, None)
     if getattr(dsm, "resampling", None):
@@ -828,7 +835,7 @@ def _simulate(args) -> int:
                                  occlusion=not args.no_occlusion, threads=args.threads,
                                  block_lines=args.block_lines, progress=not args.quiet,
                                  out=out / "backplanes" if args.memmap else None)
-        for w in caught:                        # one line each, naming the file (not a Python warning)
+        for w in _notes(caught):                # one line each, naming the file (not a Python warning)
             print(f"simulate: note: --ortho {args.ortho}: {w.message}", file=sys.stderr)
         written = write_outputs(sim, out, "simulated")
         if args.compare_iterative:
