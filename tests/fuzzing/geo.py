@@ -442,10 +442,19 @@ def _surface_at(srf, p, a, f):
 
 
 def _surface_range(srf, u, v, du, dv):
-    """Smallest and largest reference surface height within (du, dv) cells of (u, v)."""
+    """Smallest and largest reference surface height within (du, dv) cells of (u, v).
+
+    Sampled at most half a cell apart (a window over a cell wide sampled at its ends and centre
+    only skipped the cells between: seed 7420 flagged a following hit beside a 3989 m column
+    at 1.7 um wide cells by the pole, whose wall it had hit, as below a surface of 4000-4007 m)."""
     lo, hi = np.inf, -np.inf
-    for eu in (-du, 0.0, du):
-        for ev in (-dv, 0.0, dv):
+
+    def offsets(d, n):
+        k = int(min(max(2, math.ceil(4.0 * d)), 4 * n + 4))     # (a window wider than the grid: every cell)
+        return np.unique(np.concatenate([np.linspace(-d, d, k + 1), [0.0]]))
+
+    for eu in offsets(du, srf.nrows):
+        for ev in offsets(dv, srf.ncols):
             uu, vv = np.array([u + eu]), np.array([v + ev])
             if not srf.inside(uu, vv).all():
                 # at the grid's edge: a ray that comes in low from outside (and was
