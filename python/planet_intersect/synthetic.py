@@ -66,9 +66,10 @@ def mars_like_dem(ppd: int = 4, seed: int = 2008) -> DEM:
 
 
 def rough_dem(ppd: int = 2, base: float = 3390.0, rms: float = 3.0, seed: int = 7,
-              f: float = 0.0, re: float = 1.0, cell_noise: float = 0.0) -> DEM:
+              f: float = 0.0, re: float | None = None, cell_noise: float = 0.0) -> DEM:
     """A rough synthetic DEM for tests: constant base radius + smooth waves +
-    optional independent per-cell noise (spikes between neighbouring cells)."""
+    optional independent per-cell noise (spikes between neighbouring cells).
+    Without ``re``: no reference spheroid (Table 1's f = 0, re = 1; DEM.from_array)."""
     lat = -90.0 + (np.arange(180 * ppd) + 0.5) / ppd
     lon = (np.arange(360 * ppd) + 0.5) / ppd
     radii = base + _waves(lat, lon, seed, n_waves=60, rms=rms, max_wavenumber=40)
