@@ -420,25 +420,25 @@ class DEM:
     def _read_rows(self, j0: int, j1: int) -> np.ndarray:
         """Rows j0..j1-1 as float64; a file-backed DEM is read with plain reads (not
         through its memory map, whose touched pages would stay resident)."""
-        if self.path is not None and isinstance(self.radii, np.memmap):
-            dtype = self.radii.dtype
+        if self.path is not None and isinstance(self._radii, np.memmap):
+            dtype = self._radii.dtype
             with open(dem_paths(self.path)[1], "rb") as fh:
                 fh.seek(j0 * self.nlon * dtype.itemsize)
                 out = np.fromfile(fh, dtype=dtype, count=(j1 - j0) * self.nlon)
             return out.reshape(j1 - j0, self.nlon).astype(np.float64)
-        return np.asarray(self.radii[j0:j1], dtype=np.float64)
+        return np.asarray(self._radii[j0:j1], dtype=np.float64)
 
     def mapped_bytes(self) -> np.ndarray | None:
         """The bytes of this DEM's read-only memory map of its ``.dem`` file, as a
         flat int8 view (no copy), for the Fortran core to read records from in
         dem_read_mode 1; None when the DEM is in memory or its byte order is not
         the machine's (the core then maps the file itself for each call)."""
-        if not isinstance(self.radii, np.memmap) or not self.radii.dtype.isnative:
+        if not isinstance(self._radii, np.memmap) or not self._radii.dtype.isnative:
             return None
         self.check_file()
-        if not self.radii.flags.c_contiguous:
+        if not self._radii.flags.c_contiguous:
             return None
-        return self.radii.reshape(-1).view(np.int8)
+        return self._radii.reshape(-1).view(np.int8)
 
     def mapped_poles(self) -> np.ndarray:
         """The polar means (south, north) of the rows next to the poles, as the
@@ -448,7 +448,7 @@ class DEM:
         if self._map_poles is None:
             from ._ext import core as _core
 
-            poles, stat = _core.core_map_poles(self.mapped_bytes(), self.radii.dtype.itemsize, self.ppd,
+            poles, stat = _core.core_map_poles(self.mapped_bytes(), self._radii.dtype.itemsize, self.ppd,
                                                self.rmax, self.f, self.re)
             raise_for_stat(stat, f"DEM polar rows ({self.path})")
             self._map_poles = poles
@@ -463,8 +463,8 @@ class DEM:
                 for j in range(0, self.nlat, _BLOCK_ROWS):
                     r64[j:j + _BLOCK_ROWS] = self._read_rows(j, min(j + _BLOCK_ROWS, self.nlat))
             else:
-                r64 = np.ascontiguousarray(self.radii, dtype=np.float64)
-                if r64 is self.radii:
+                r64 = np.ascontiguousarray(self._radii, dtype=np.float64)
+                if r64 is self._radii:
                     r64 = r64.copy()
             r64.flags.writeable = False
             self._radii64 = r64
@@ -539,7 +539,7 @@ class DEM:
         """
         hdr, dem = dem_paths(path)
         if dtype is None:
-            dtype = "float32" if self.radii.dtype.itemsize == 4 else "float64"
+            dtype = "float32" if self._radii.dtype.itemsize == 4 else "float64"
         if dtype not in _DTYPES:
             raise ValueError(f"dtype must be one of {', '.join(_DTYPES)}, got {dtype!r}")
         if byteorder not in _BYTEORDERS:
@@ -555,12 +555,12 @@ class DEM:
         if dtype == "float32":
             # float32 holds about 1.2e-38 .. 3.4e38 as normal numbers: outside, radii the format
             # accepts became inf or 0 and the pair could not be read back (a review)
-            lo, hi = float(np.min(self.radii)), max(float(np.max(self.radii)), self.rmax)
+            lo, hi = float(np.min(self._radii)), max(float(np.max(self._radii)), self.rmax)
             fi = np.finfo(np.float32)
             if not (lo >= float(fi.tiny) and hi <= float(fi.max)):
                 raise ValueError(f"dtype='float32' cannot hold these radii ({lo:g} .. {hi:g}; float32 holds "
                                  f"{float(fi.tiny):g} .. {float(fi.max):g}): write float64")
-        data = np.asarray(self.radii, dtype=np.dtype(dtype).newbyteorder(_BYTEORDERS[byteorder]))
+        data = np.asarray(self._radii, dtype=np.dtype(dtype).newbyteorder(_BYTEORDERS[byteorder]))
         tmp_dem = dem.with_name(dem.name + ".part")
         with open(tmp_dem, "wb") as fh:
             for j in range(0, self.nlat, _BLOCK_ROWS):

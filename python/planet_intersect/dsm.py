@@ -449,8 +449,8 @@ class GeodeticDSM:
             if untagged and raw.size and raw.dtype.kind in "fi":
                 # the other usual voids, untagged: a float -9999 was read as a 9,999 m pit and every
                 # method hit it (a walk-through)
-                lowest = float(np.nanmin(raw)) if raw.dtype.kind == "f" and not np.isnan(raw).all() else (
-                    float(raw.min()) if raw.dtype.kind == "i" else math.nan)
+                values = raw[~np.isnan(raw)] if raw.dtype.kind == "f" else raw
+                lowest = float(values.min()) if values.size else math.nan
                 if lowest in _VOID_VALUES or lowest <= -1e30:
                     raise DSMError(f"DSM file {path}: band {band} holds {lowest:g}, a usual no-data value, but "
                                    f"has no nodata tag: pass nodata={lowest:g} to read those cells as no data "

@@ -137,6 +137,9 @@ def _ray_status_items():
     return RAY_STATUS.items()
 
 
+#: keywords of intersect() that only a GeodeticDSM takes (intersect_dsm's own)
+_DSM_ONLY_OPTIONS = frozenset({"outside"})
+
 #: Largest squared length taken without rescaling, and the smallest.
 _N2_MAX, _N2_MIN = 1e300, 1e-300
 #: Spacecraft farther than this many rmax are rejected (pi_intersect::far_limit).
@@ -298,25 +301,23 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
     from ._ext import core as _core
     from .dsm import GeodeticDSM, intersect_dsm
 
+    # an unknown keyword is intersect's error (not the inner intersect_dsm's, nor "a DSM option"
+    # for a misspelt stepmode: a walk-through)
+    unknown = sorted(set(dsm_options) - _DSM_ONLY_OPTIONS)
+    if unknown:
+        raise TypeError(f"intersect: unexpected keyword argument(s) {unknown} (a GeodeticDSM takes method, "
+                        f"threads and {', '.join(sorted(_DSM_ONLY_OPTIONS))})")
     if isinstance(dem, GeodeticDSM):                     # the Shin & Park system (dsm.py)
         given = {k: v for k, v in (("step_mode", step_mode != 1), ("dem_read_mode", dem_read_mode != 0),
                                    ("tangent", tangent != "exact"), ("io", io != "records")) if v}
         if given:
             raise TypeError(f"intersect: {sorted(given)} apply to a planetary DEM, not a GeodeticDSM")
-        unknown = sorted(set(dsm_options) - {"outside"})
-        if unknown:                          # (named as intersect's, not the inner intersect_dsm's: a walk-through)
-            raise TypeError(f"intersect: unexpected keyword argument(s) {unknown} (a GeodeticDSM takes method, "
-                            f"threads and outside)")
         return intersect_dsm(dem, s, l, method="following" if method is None else method, threads=threads,
                              **dsm_options)
     if not isinstance(dem, DEM):
         raise TypeError(f"dem must be a planet_intersect.DEM or GeodeticDSM, got {type(dem).__name__}")
     if dsm_options:
-        known = sorted(set(dsm_options) & {"outside"})
-        unknown = sorted(set(dsm_options) - {"outside"})
-        if unknown:                                  # (a misspelt stepmode was called a DSM option)
-            raise TypeError(f"intersect: unexpected keyword argument(s) {unknown}")
-        raise TypeError(f"intersect: {known} apply to a GeodeticDSM only")
+        raise TypeError(f"intersect: {sorted(dsm_options)} apply to a GeodeticDSM only")
     if method is None:
         method = "stepping"
     step_mode = _check_mode(step_mode, "step_mode")
