@@ -70,6 +70,8 @@ def test_run_subcommand(tmp_path, rough):
     (["run", "nothere.hdr", "rays.txt"], "nothere.hdr: no such file"),
     (["run", "DEM", "missing_rays.txt"], "rays file missing_rays.txt: no such file"),
     (["run", "DEM", "bad_rays.txt"], "bad_rays.txt, line 1: expected 6 numbers"),
+    (["run", "DEM.hdr", "bad_rays.txt", "--io", "mmap"], "--io mmap says how --dem-read-mode 1 reads"),
+    (["run", "DEM.hdr", "bad_rays.txt", "--io", "mmap", "--dem-read-mode", "0"], "pass --dem-read-mode 1"),
 ])
 def test_errors_are_one_line(tmp_path, rough, capsys, monkeypatch, args, message):
     rough.write(tmp_path / "DEM")

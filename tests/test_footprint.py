@@ -505,6 +505,13 @@ def test_result_exports(sphere):
     assert np.all(np.isfinite(fp.airmass)) and np.all(fp.airmass >= 1)
     cols = fp.to_table()
     assert len(cols["lat"]) == len(fp) and "gsh_x" in cols
+    # a subset that keeps only the second spectrum: the first keeps its row, all NaN, not visible
+    second = fp.subset(fp.spectrum == 1).to_xarray("dense")
+    assert second.sizes["spectrum"] == 2 and second.sizes["cell"] == np.count_nonzero(np.bincount(
+        fp.cell[fp.spectrum == 1]))
+    assert np.isnan(second["emission"].values[0]).all() and not second["visible"].values[0].any()
+    assert np.isfinite(second["emission"].values[1]).all()
+    np.testing.assert_array_equal(second["zeta"].values, fp.zeta)
     ct = sphere.to_xarray()
     assert ct.sizes["cell"] == len(sphere)
 

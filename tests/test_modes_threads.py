@@ -106,6 +106,16 @@ def test_bad_io(rough_file):
         pi.intersect(rough_file, [5000.0, 0, 0], [-1.0, 0, 0], dem_read_mode=1, io="cache")
 
 
+def test_mmap_with_mode_0_is_refused(rough_file):
+    """io only says how dem_read_mode=1 reads the file: with the in-memory mode 0 it
+    was taken and ignored (listed as left alone in stop 30), now it is refused."""
+    for method in ("stepping", "exact"):
+        with pytest.raises(ValueError, match=r"io='mmap' says how dem_read_mode=1 reads .*dem_read_mode=0"):
+            pi.intersect(rough_file, [5000.0, 0, 0], [-1.0, 0, 0], io="mmap", method=method)
+    res = pi.intersect(rough_file, [5000.0, 0, 0], [-1.0, 0, 0], io="records")     # the default: accepted
+    assert res.hit[0]
+
+
 def test_mode1_reads_do_not_map_the_file(tmp_path):
     """DEM.read checks the file with plain reads and mode 1 reads records with pread:
     resident memory does not grow with the DEM. Measured in a child process that only

@@ -266,6 +266,9 @@ def _run(args) -> int:
     given = [f"--{k.replace('_', '-')}" for k in _DSM_RUN_OPTIONS if getattr(args, k) is not None]
     if given:
         raise CLIError(f"{', '.join(given)}: for a geodetic DSM (.tif, .npz) only, not the DEM {args.dem}")
+    if args.io == "mmap" and args.dem_read_mode != 1:
+        raise CLIError("--io mmap says how --dem-read-mode 1 reads the .dem file; pass --dem-read-mode 1 "
+                       "with it, or leave --io out (the default mode 0 holds the grid in memory)")
     for k, default in _DEM_RUN_OPTIONS.items():
         if getattr(args, k) is None:
             setattr(args, k, default)
@@ -949,7 +952,7 @@ def _parser() -> argparse.ArgumentParser:
     dem_g.add_argument("--tangent", choices=("exact", "paper"), default=None,
                        help="spheroid tangent point: true nearest point (default) or the paper's eqs. 55-58")
     dem_g.add_argument("--io", choices=("records", "mmap"), default=None,
-                       help="with --dem-read-mode 1: one read per record (default) or a memory map")
+                       help="with --dem-read-mode 1 only: one read per record (default) or a memory map")
     dsm_g = r.add_argument_group("geodetic DSM only (.tif, .npz)")
     dsm_g.add_argument("--interpolation", choices=("bilinear", "nearest"), default=None,
                        help="DSM surface (default: nearest for a warped projected raster, else bilinear)")

@@ -1034,7 +1034,9 @@ class FootprintResult:
         """An ``xarray.Dataset``: ``layout="pairs"`` (dimension ``pair``, with the
         spectrum and cell of each as coordinates) or ``"dense"`` (dimensions
         ``spectrum`` x ``cell`` over the cells that occur in any footprint, NaN
-        where a cell is not in a spectrum's footprint).
+        where a cell is not in a spectrum's footprint; every spectrum keeps its row,
+        so one left without pairs by :meth:`subset` is a row of NaN, its index and
+        zeta unchanged).
 
         Every variable and coordinate has ``units`` and ``long_name`` attributes
         (angles "degree", lat/lon "degrees_north"/"degrees_east", solid angle

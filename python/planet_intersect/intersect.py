@@ -276,7 +276,7 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
         miss of a chord longer than that. ``nsteps`` then counts the segments
         examined. Limb outputs are identical for both.
     io : "records" or "mmap"
-        How dem_read_mode=1 reads the file: "records", one pread per record (the
+        How dem_read_mode=1 reads the file (refused with dem_read_mode=0): "records", one pread per record (the
         paper's direct access; resident memory stays small whatever the DEM size);
         "mmap", from a read-only memory map (faster; the kernel pages in what the
         rays touch): the DEM's own map, kept open between calls, when the file is
@@ -323,6 +323,10 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
     step_mode = _check_mode(step_mode, "step_mode")
     dem_read_mode = _check_mode(dem_read_mode, "dem_read_mode")
     _choice(io, "io", ("records", "mmap"))
+    if io != "records" and dem_read_mode == 0:
+        # io says how mode 1 reads the file; taken silently with mode 0 it looked used (stop 30's list)
+        raise ValueError(f"io={io!r} says how dem_read_mode=1 reads the DEM's file; with dem_read_mode=0 "
+                         "the grid is in memory and io has no use: pass dem_read_mode=1 with it, or leave io out")
     _choice(method, "method (for a planetary DEM)", tuple(_METHOD))
     _choice(tangent, "tangent", tuple(_TANGENT))
     check_threads(threads, 1)

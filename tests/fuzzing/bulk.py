@@ -494,10 +494,16 @@ def cli_case(r: R, seed: int) -> dict:
     case = {"op": "cli_run", "dem": {"ppd": 1, "base": 3380.0, "rough": 1.0, "seed": 1, "f": 1 / 169.8,
                                      "re": 3390.0, "rmax": rmax},
             "rays": content.encode(), "options": options, "why": why,
-            "names": ["rays.txt", "cli.hdr", "cli.dem", "threads", "--threads"]}
+            "names": ["rays.txt", "cli.hdr", "cli.dem", "threads", "--threads", "--io"]}
     bad_threads = threads in ("-1", "100000", "x")
+    # --io mmap needs --dem-read-mode 1 (refused before the rays file is read)
+    given = dict(zip(options[::2], options[1::2]))
+    bad_io = given.get("--io") == "mmap" and given.get("--dem-read-mode") != "1"
     if r.chance(0.03):
         case["special"] = r.pick(["dir", "fifo", "loop", "dangling"])
+        return case
+    if bad_io:
+        case["why"] = "--io mmap without --dem-read-mode 1"
         return case
     if not bad:
         case["nrays"] = n

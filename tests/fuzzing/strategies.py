@@ -381,11 +381,15 @@ def cli_cases(draw):
     case = {"op": "cli_run", "dem": {"ppd": 1, "base": 3380.0, "rough": 1.0, "seed": 1, "f": 1 / 169.8,
                                      "re": 3390.0, "rmax": rmax},
             "rays": content.encode(), "options": options, "why": why,
-            "names": ["rays.txt", "cli.hdr", "cli.dem", "threads", "--threads"]}
+            "names": ["rays.txt", "cli.hdr", "cli.dem", "threads", "--threads", "--io"]}
     bad_threads = any(v in ("-1", "100000", "x") for v in options[1::2] if options[options.index(v) - 1] == "--threads") \
         if "--threads" in options else False
+    given = dict(zip(options[::2], options[1::2]))
     if draw(chance(0.03)):                             # the rays file is not a regular file
         case["special"] = draw(st.sampled_from(["dir", "fifo", "loop", "dangling"]))
+        return case
+    if given.get("--io") == "mmap" and given.get("--dem-read-mode") != "1":
+        case["why"] = "--io mmap without --dem-read-mode 1"   # refused before the rays file is read
         return case
     if not bad:
         case["nrays"] = n
