@@ -1,0 +1,272 @@
+"""Edges of the documented contract that no test pinned down before.
+
+Found by mutation testing of the Python facade (stop 31: 62 mutants of geodetic.py,
+sensors.py, dsm.py, footprint.py, simulate.py and intersect.py; each test below fails
+for a mutant that survived the whole suite, named in its docstring). The expected
+values come from the docstrings' contract, closed forms and geometry set up here, not
+from the implementation.
+"""
+import math
+
+import numpy as np
+import pytest
+
+import planet_intersect as pi
+from planet_intersect.footprint import flux_weights, position_angle
+from planet_intersect.synthetic_dsm import metre_steps
+
+WGS84_A = 6378137.0
+WGS84_F = 1 / 298.257223563
+
+
+def _xyz(lat, lon, r):
+    la, lo = np.radians(lat), np.radians(lon)
+    return np.array([r * np.cos(la) * np.cos(lo), r * np.cos(la) * np.sin(lo), r * np.sin(la)])
+
+
+# ---------------------------------------------------------------- geodetic.py
+
+
+def test_longitudes_just_below_minus_180_stay_in_range():
+    """A grid whose first longitude is one ulp below -180: mod(x + 180, 360) rounds to
+    360 there, and the documented range [-180, 180) needs the guard that maps it to
+    -180 (mutant: the guard dropped, lons[0] = +180)."""
+    dsm = pi.GeodeticDSM.from_array(np.zeros((2, 2)), 10.0, np.nextafter(-180.0, -np.inf), -1.0, 1.0)
+    assert dsm.lons[0] == -180.0
+    assert np.all((dsm.lons >= -180.0) & (dsm.lons < 180.0))
+
+
+@pytest.mark.parametrize("lat", [np.nextafter(90.0, 91.0), np.nextafter(-90.0, -91.0), 90.3])
+def test_latitude_one_ulp_past_a_pole_is_refused(lat):
+    """geodetic_to_ecef refuses |lat| > 90 (the only test used 91; mutant: the limit
+    moved to 90.5, and 90.3 came back as a point 33.5 km past the pole)."""
+    with pytest.raises(ValueError, match="lat"):
+        pi.geodetic_to_ecef(lat, 0.0, 0.0)
+    assert np.allclose(pi.geodetic_to_ecef(90.0, 0.0, 0.0), [0.0, 0.0, WGS84_A * (1 - WGS84_F)], atol=1e-6)
+
+
+# ---------------------------------------------------------------- sensors.py
+
+
+@pytest.mark.parametrize("roll, pitch, yaw, lat", [(20.0, 20.0, 0.0, 0.0), (20.0, -10.0, 30.0, 40.0),
+                                                   (-15.0, 25.0, -60.0, -55.0)])
+def test_boresight_follows_the_documented_3_2_1_rotation(roll, pitch, yaw, lat):
+    """The boresight in the orbital frame (x along the ground-relative velocity made
+    horizontal, z down the ellipsoid normal, y = z x x) is Rz(yaw) Ry(pitch) Rx(roll)
+    applied to +z: (cos y a - sin y b, sin y a + cos y b, cos p cos r) with
+    a = sin p cos r, b = -sin r. Roll and pitch together tell the order apart (the
+    off-nadir angle acos(cos p cos r) does not; mutant: Rx Ry Rz, the x and y
+    components swapped)."""
+    sen = pi.Pushbroom.from_orbit(altitude=700e3, inclination=98.0, npixels=1, ifov=1e-3, lat=lat, lon=10.0,
+                                  roll=roll, pitch=pitch, yaw=yaw)
+    s, l = sen.rays(0, 1)
+    s, l = s[0], l[0] / np.linalg.norm(l[0])
+    # the ellipsoid normal through s, from the closed form of its latitude by iteration (own code)
+    rho = math.hypot(s[0], s[1])
+    e2 = WGS84_F * (2 - WGS84_F)
+    phi = math.atan2(s[2], rho * (1 - e2))
+    for _ in range(10):
+        n_rad = WGS84_A / math.sqrt(1 - e2 * math.sin(phi) ** 2)
+        h = rho / math.cos(phi) - n_rad
+        phi = math.atan2(s[2], rho * (1 - e2 * n_rad / (n_rad + h)))
+    lam = math.atan2(s[1], s[0])
+    z = -np.array([math.cos(phi) * math.cos(lam), math.cos(phi) * math.sin(lam), math.sin(phi)])
+    v = sen.velocity[0]
+    x = v - (v @ z) * z
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    r, p, w = np.radians([roll, pitch, yaw])
+    a, b = math.sin(p) * math.cos(r), -math.sin(r)
+    want = [math.cos(w) * a - math.sin(w) * b, math.sin(w) * a + math.cos(w) * b, math.cos(p) * math.cos(r)]
+    np.testing.assert_allclose([l @ x, l @ y, l @ z], want, atol=1e-12)
+
+
+@pytest.mark.parametrize("zenith", [90.0001, 91.0, -0.0001])
+def test_view_zenith_outside_0_90_is_refused(zenith):
+    """off_nadir_angle takes a view zenith in [0, 90] (mutant: the limit moved to 91,
+    and 90.5 deg gave an off-nadir angle of 64.3 deg)."""
+    with pytest.raises(ValueError, match="view_zenith|zenith"):
+        pi.off_nadir_angle(zenith, 700e3)
+    # and at the limit itself: sin(alpha) = R / (R + H)
+    assert pi.off_nadir_angle(90.0, 700e3) == pytest.approx(math.degrees(math.asin(WGS84_A / (WGS84_A + 700e3))),
+                                                            abs=1e-9)
+
+
+# ---------------------------------------------------------------- dsm.py / intersect.py
+
+
+def test_outside_ellipsoid_reports_the_ellipsoid_points_latitude_and_longitude():
+    """outside="ellipsoid": ellipsoid_lat/lon are the geodetic coordinates of the ray's
+    point on the bare ellipsoid (only ellipsoid_p was checked; mutant: lat and lon
+    swapped). The point is solved here as a line-quadric intersection, and its
+    latitude is the closed form on the surface, atan(z / ((1 - e2) rho))."""
+    d = 1e-4
+    dsm = pi.GeodeticDSM.from_array(np.zeros((20, 20)), 45.0, 10.0, -d, d)      # flat, h = 0, 45N 10E
+    s = pi.geodetic_to_ecef(45.0 - 10 * d, 10.0 + 10 * d, 1000.0)
+    up = s / np.linalg.norm(s)
+    east = np.array([-math.sin(math.radians(10.0)), math.cos(math.radians(10.0)), 0.0])
+    l = east - 0.05 * up
+    res = pi.intersect(dsm, s, l, method="exact", outside="ellipsoid")
+    assert res.status[0] == pi.DSMStatus.LEFT_DSM and res.on_ellipsoid[0]
+    b = WGS84_A * (1 - WGS84_F)
+    u = l / np.linalg.norm(l)
+    qa = (u[0] ** 2 + u[1] ** 2) / WGS84_A ** 2 + u[2] ** 2 / b ** 2
+    qb = 2 * ((s[0] * u[0] + s[1] * u[1]) / WGS84_A ** 2 + s[2] * u[2] / b ** 2)
+    qc = (s[0] ** 2 + s[1] ** 2) / WGS84_A ** 2 + s[2] ** 2 / b ** 2 - 1
+    t = (-qb - math.sqrt(qb * qb - 4 * qa * qc)) / (2 * qa)
+    q = s + t * u
+    e2 = WGS84_F * (2 - WGS84_F)
+    lat = math.degrees(math.atan2(q[2], (1 - e2) * math.hypot(q[0], q[1])))
+    lon = math.degrees(math.atan2(q[1], q[0]))
+    np.testing.assert_allclose(res.ellipsoid_p[0], q, atol=1e-6)
+    assert res.ellipsoid_lat[0] == pytest.approx(lat, abs=1e-10)
+    assert res.ellipsoid_lon[0] == pytest.approx(lon, abs=1e-10)
+    assert 10.25 < lon < 10.28 and 44.99 < lat < 45.0             # ~19 km east, a little south
+
+
+def test_dsm_incidence_is_in_degrees_from_the_normal():
+    """DSMResult.incidence: degrees from the ellipsoid normal (mutant: left in radians,
+    0.5236, caught before only by a sensors test)."""
+    dsm = pi.GeodeticDSM.from_array(np.zeros((21, 21)), 1.0, -1.0, -0.1, 0.1)       # flat, around 0N 0E
+    p = np.array([WGS84_A, 0.0, 0.0])                                                  # normal = +x
+    for deg in (0.0, 30.0, 60.0):
+        t = math.radians(deg)
+        l = np.array([-math.cos(t), math.sin(t), 0.0])
+        for method in ("following", "exact", "iterative"):
+            res = pi.intersect(dsm, p - 1e4 * l, l, method=method)
+            assert res.hit[0] and res.incidence[0] == pytest.approx(deg, abs=1e-6), (deg, method)
+
+
+@pytest.mark.parametrize("option", [dict(step_mode=0), dict(dem_read_mode=1), dict(tangent="paper"),
+                                    dict(io="mmap")])
+def test_dem_only_options_are_refused_with_a_dsm(option):
+    """Every DEM-only option of intersect is refused with a GeodeticDSM, not only
+    step_mode (mutant: tangent= dropped from the check and silently ignored)."""
+    dsm = pi.GeodeticDSM.from_array(np.zeros((10, 10)), 45.0, 10.0, -1e-3, 1e-3)
+    s = pi.geodetic_to_ecef(44.995, 10.005, 1000.0)
+    with pytest.raises(TypeError, match=f"{next(iter(option))}.*planetary DEM"):
+        pi.intersect(dsm, s, -s, **option)
+
+
+# ---------------------------------------------------------------- footprint.py
+
+
+def test_position_angle_is_nan_within_1e_12_rad_of_a_pole():
+    """Over a pole the bearing is undefined: NaN when the spacecraft is within 1e-12 rad
+    of the axis (mutant: the rule dropped, a bearing of 180 deg from 1e-13 rad)."""
+    for off in (0.0, 1e-13, 9e-13):
+        assert np.isnan(position_angle([off * 3500.0, 0.0, 3500.0], [3390.0, 0.0, 0.0])[0]), off
+        assert np.isnan(position_angle([0.0, off * 3500.0, -3500.0], [3390.0, 0.0, 0.0])[0]), off
+    # 1e-6 rad off the north pole on the 0E meridian: the cell at 0N 0E is due south
+    assert position_angle([1e-6 * 3500.0, 0.0, 3500.0], [3390.0, 0.0, 0.0])[0] == pytest.approx(180.0, abs=1e-6)
+
+
+@pytest.mark.parametrize("q", [0.1, 0.01])
+def test_a_cell_behind_its_own_slope_is_hidden_at_the_default_tolerance(q):
+    """A line of sight that enters the bilinear surface q of a pixel before its cell is
+    occluded: the default tolerance is 1e-6 rmax (3.4 m here), far below the ~148 m
+    (q = 0.01) and ~1.5 km (q = 0.1) of terrain in the way (mutants: the test
+    'shortfall > tol' made '> 100 tol', or the default tolerance 1e-3 rmax; both left
+    the cell visible). Construction: a sphere of 3,390 km at 4 pixels/degree, one
+    column of nodes raised so that the ramp to the cell's own node crosses the line
+    from a spacecraft 10 deg west and 400 km up exactly q of a pixel west of the cell."""
+    from scipy.optimize import brentq
+
+    R = 3390.0
+    S = _xyz(0.125, 0.125, R + 400.0)
+    T = _xyz(0.125, 10.125, R)                         # the cell centre, DEM node (row 360, column 40)
+    w = S - T
+
+    def lon_of(t):
+        P = T + t * w
+        return math.degrees(math.atan2(P[1], P[0]))
+
+    t = brentq(lambda t: lon_of(t) - (10.125 - q * 0.25), 0.0, 0.5)
+    h1 = (np.linalg.norm(T + t * w) - R) / q           # the ramp from node 39 (R + h1) to node 40 (R)
+    radii = np.full((720, 1440), R)
+    radii[:, 39] += h1
+    cells = pi.CellTable(pi.DEM.from_array(radii), 0.25)
+    fp = pi.footprint(cells, S, [0, 0, 1.0], occlusion=True)
+    sel = fp.cell == int(cells.index(0.125, 10.125))
+    assert sel.sum() == 1 and not fp.visible[sel][0]
+    # the cell two pixels east of it, beyond the ramp's reach on flat ground, is seen
+    east = fp.cell == int(cells.index(0.125, 10.625))
+    assert east.sum() == 1 and fp.visible[east][0]
+
+
+def test_flux_weights_are_zero_for_cells_facing_away():
+    """flux_weights = area max(cos emission, 0) solid_angle: cells whose surface faces
+    away from the spacecraft (emission > 90) weigh nothing (mutant: |cos|, caught
+    before only by the bulk fuzz)."""
+    R = 3390.0
+    radii = np.full((720, 1440), R)
+    lon = (np.arange(1440) + 0.5) / 4
+    ramp = (lon > 10) & (lon < 12)
+    radii[:, ramp] += 40.0 * np.clip(12 - lon[ramp], 0, 1)     # an east-facing scarp between 11 and 12 E
+    cells = pi.CellTable(pi.DEM.from_array(radii), 0.5)
+    fp = pi.footprint(cells, _xyz(0.25, 0.25, R + 400.0), [0, 0, 1.0])      # 11 deg west of the scarp
+    w = flux_weights(fp)
+    back = fp.emission > 90.0
+    assert back.sum() > 50 and np.all(w[back] == 0.0)
+    front = fp.emission < 89.0
+    assert np.all(w[front] > 0.0)
+
+
+# ---------------------------------------------------------------- simulate.py
+
+
+def _flat_scene():
+    dsm = pi.GeodeticDSM.from_array(np.zeros((20, 20)), 36.6, -84.3, -1e-4, 1e-4)
+    ortho = pi.OrthoImage.from_array(np.ones((20, 20)), 36.6, -84.3, -1e-4, 1e-4)
+    cam = pi.FrameCamera.nadir(36.599, -84.299, 1000.0, (5, 5), 0.01)
+    return dsm, ortho, cam
+
+
+@pytest.mark.parametrize("kw, name", [(dict(ambient=1.5), "ambient"), (dict(ambient=-0.1), "ambient"),
+                                      (dict(sun=(0.0, 120.0)), "sun"), (dict(sun=(0.0, -90.5)), "sun")])
+def test_lambert_options_out_of_range_are_refused(kw, name):
+    """With shading="lambert" (where sun and ambient are used), ambient outside [0, 1]
+    and a sun elevation outside [-90, 90] are refused (the existing test passed ambient
+    without lambert and was caught by another check; mutants: the range checks
+    dropped)."""
+    dsm, ortho, cam = _flat_scene()
+    kw = dict(sun=(0.0, 30.0), **kw) if "sun" not in kw else kw
+    with pytest.raises(ValueError, match=name):
+        pi.simulate_image(dsm, ortho, cam, shading="lambert", occlusion=False, **kw)
+
+
+def test_ortho_centres_follow_the_grid_sign():
+    """OrthoImage.centres(): row i at lat_first + i dlat, column j at lon_first + j dlon,
+    north-up (dlat < 0) and south-up alike (mutant: |dlat|)."""
+    o = pi.OrthoImage.from_array(np.zeros((3, 3)), 10.0, 20.0, -0.5, 0.25)
+    lat, lon = o.centres()
+    np.testing.assert_array_equal(np.unique(lat)[::-1], [10.0, 9.5, 9.0])
+    np.testing.assert_array_equal(np.unique(lon), [20.0, 20.25, 20.5])
+    lat, _ = pi.OrthoImage.from_array(np.zeros((3, 3)), 9.0, 20.0, 0.5, 0.25).centres()
+    np.testing.assert_array_equal(np.unique(lat), [9.0, 9.5, 10.0])
+
+
+def test_ground_just_behind_a_ridge_is_occluded():
+    """The occlusion mask's margin is 1 cm: an ortho pixel 0.25 m west of a ridge's
+    crest (10 m high, slopes 5 m/m, bilinear, 1 m cells), seen at 45 deg from the east,
+    is hidden by 0.59 m of the ridge along the line (its 45-deg line leaves the ridge
+    where 8.75 + x = 11.25 - 5x, x = 0.417 m east of it); the pixels 0.5 and 0.75 m
+    west by 1.18 and 1.77 m (mutant: the margin 1 m, and the first became visible)."""
+    lat0, lon0 = 36.6, -84.3
+    dlat, dlon = metre_steps(lat0)
+    n, j0 = 40, 20
+    h = np.tile(10.0 - 5.0 * np.abs(np.arange(n) - j0), (n, 1)).clip(0)
+    lat_first = lat0 + (n - 1) * dlat
+    dsm = pi.GeodeticDSM.from_array(h, lat_first, lon0, -dlat, dlon, interpolation="bilinear")
+    m = 4 * (n - 1) + 1
+    ortho = pi.OrthoImage.from_array(np.ones((m, m)), lat_first, lon0, -dlat / 4, dlon / 4)    # 0.25 m pixels
+    lat_c, lon_c = lat0 + 20 * dlat, lon0 + j0 * dlon
+    cam = pi.FrameCamera.pinhole((lat_c, lon_c + 1000 * dlon, 1010.0), (lat_c, lon_c, 10.0), (61, 61), 0.01,
+                                 geodetic=True)
+    sim = pi.simulate_image(dsm, ortho, cam, occlusion=True)
+    row = 4 * 20
+    for k in (1, 2, 3):
+        assert sim.footprint[row, 4 * j0 - k] and sim.occlusion[row, 4 * j0 - k], k
+    # the crest itself and the east slope facing the camera are seen (the image ends ~2 m east)
+    for k in (0, -2, -6):
+        assert sim.footprint[row, 4 * j0 - k] and not sim.occlusion[row, 4 * j0 - k], k
