@@ -270,3 +270,252 @@ def test_ground_just_behind_a_ridge_is_occluded():
     # the crest itself and the east slope facing the camera are seen (the image ends ~2 m east)
     for k in (0, -2, -6):
         assert sim.footprint[row, 4 * j0 - k] and not sim.occlusion[row, 4 * j0 - k], k
+
+
+# ================================================================ the compiled cores
+# Found by mutation testing of fortran/pi_follow.f90, pi_footprint.f90 and pi_simulate.f90
+# (stop 31: 55 mutants; 7 survived the whole suite, 4 more were caught only by the fuzz or
+# another system's tests). The geodesy here is the test's own (fixed-point latitude).
+
+
+def _geodetic(p):
+    """(lat deg, lon deg, h) of an ECR point on WGS-84: the fixed-point iteration on the
+    latitude (contraction ~e2 per pass), the test's own code."""
+    e2 = WGS84_F * (2 - WGS84_F)
+    rho = math.hypot(p[0], p[1])
+    phi = math.atan2(p[2], rho * (1 - e2))
+    h = 0.0
+    for _ in range(30):
+        n_rad = WGS84_A / math.sqrt(1 - e2 * math.sin(phi) ** 2)
+        h = rho / math.cos(phi) - n_rad
+        phi = math.atan2(p[2], rho * (1 - e2 * n_rad / (n_rad + h)))
+    return math.degrees(phi), math.degrees(math.atan2(p[1], p[0])), h
+
+
+def _root(f, t0, t1):
+    """The sign change of f in [t0, t1] by bisection to rounding."""
+    f0 = f(t0)
+    assert f0 * f(t1) < 0
+    for _ in range(200):
+        tm = 0.5 * (t0 + t1)
+        if tm in (t0, t1):
+            break
+        if f(tm) * f0 > 0:
+            t0 = tm
+        else:
+            t1 = tm
+    return 0.5 * (t0 + t1)
+
+
+def _enu(lat, lon):
+    la, lo = np.radians(lat), np.radians(lon)
+    up = np.array([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)])
+    east = np.array([-np.sin(lo), np.cos(lo), 0.0])
+    return east, np.cross(up, east), up
+
+
+def _ray_to(lat, lon, h, off_rad, azimuth_deg, dist=600e3):
+    """A ray that reaches the geodetic point (lat, lon, h) after dist, off_rad from its
+    normal toward azimuth_deg (clockwise from north)."""
+    east, north, up = _enu(lat, lon)
+    z = math.radians(azimuth_deg)
+    d = -math.cos(off_rad) * up + math.sin(off_rad) * (math.sin(z) * east + math.cos(z) * north)
+    return pi.geodetic_to_ecef(lat, lon, h) - dist * d, d
+
+
+def _block_dsm(interpolation="nearest"):
+    h = np.zeros((200, 200))
+    h[:, 100:140] = 50.0              # a 50 m block between lon 10.000995 and 10.001395 (1e-5 deg cells)
+    return pi.GeodeticDSM.from_array(h, 45.0, 10.0, 1e-5, 1e-5, interpolation=interpolation)
+
+
+@pytest.mark.parametrize("method", ["following", "exact"])
+def test_near_nadir_ray_past_a_roof_edge_hits_the_roof(method):
+    """A ray 5e-7 rad off the vertical, travelling west, whose h = 0 point is 1e-5 m west
+    of the block's west wall: at h = 50 it is 1.5e-5 m east of the wall, over the roof,
+    so its first hit is the roof (the paper's nadir shortcut takes only rays within
+    1e-12 of the vertical; mutant: 1e-6, and the ray went to the ground beside the
+    block at 600 km)."""
+    dsm = _block_dsm()
+    lat = 45.001
+    wall = 10.0 + 99.5e-5
+    e2 = WGS84_F * (2 - WGS84_F)
+    m_per_deg_lon = math.pi / 180 * WGS84_A / math.sqrt(1 - e2 * math.sin(math.radians(lat)) ** 2) \
+        * math.cos(math.radians(lat))
+    s, d = _ray_to(lat, wall - 1e-5 / m_per_deg_lon, 0.0, 5e-7, 270.0)
+    res = pi.intersect(dsm, s, d, method=method)
+    t50 = _root(lambda t: _geodetic(s + t * d)[2] - 50.0, 599_000.0, 600_000.0)
+    assert res.status[0] == pi.DSMStatus.HIT
+    assert res.height[0] == pytest.approx(50.0, abs=1e-5)
+    assert res.distance[0] == pytest.approx(t50, abs=1e-5)
+    assert res.lon[0] > wall                                        # over the roof
+
+
+@pytest.mark.parametrize("method", ["following", "exact", "iterative"])
+def test_focal_point_below_the_ellipsoid_over_negative_heights(method):
+    """A drone 100 m below the ellipsoid, 300 m above a flat DSM at -400 m (the Dead Sea's
+    shore lies ~430 m below sea level), looking 30 deg off nadir: a hit at h = -400 at
+    the level crossing (mutant: the ellipsoid entry of a point inside the ellipsoid
+    taken at its far root, and the following answered MISS)."""
+    dsm = pi.GeodeticDSM.from_array(np.full((200, 200), -400.0), 31.4, 35.4, 1e-3, 1e-3,
+                                    interpolation="bilinear")
+    east, _, up = _enu(31.5, 35.5)
+    s = pi.geodetic_to_ecef(31.5, 35.5, -100.0)
+    d = -math.cos(math.radians(30)) * up + math.sin(math.radians(30)) * east
+    res = pi.intersect(dsm, s, d, method=method)
+    t = _root(lambda t: _geodetic(s + t * d)[2] + 400.0, 0.0, 1000.0)
+    assert res.status[0] == pi.DSMStatus.HIT
+    assert res.height[0] == pytest.approx(-400.0, abs=1e-5)
+    assert res.distance[0] == pytest.approx(t, abs=1e-5)
+    assert t == pytest.approx(300 / math.cos(math.radians(30)), abs=0.05)          # flat-earth check
+
+
+def test_iterative_hit_on_a_slope_is_within_its_tolerance():
+    """The iterative method's hits satisfy |h - H| <= 1e-6 m (its documented tolerance)
+    and lie at the crossing of the ray with the surface: a bilinear ramp rising east at
+    ~0.5, a ray 30 deg off nadir travelling east into it (the tests had flat ground and
+    blocks only, where one iteration converges; mutant: tolerance 1e-3, 0.5 mm short)."""
+    slope_per_col = 0.5 * 0.787
+    dsm = pi.GeodeticDSM.from_array(np.tile(slope_per_col * np.arange(200), (200, 1)), 45.0, 10.0, 1e-5, 1e-5,
+                                    interpolation="bilinear")
+    s, d = _ray_to(45.001, 10.001, 0.0, math.radians(30.0), 90.0)
+
+    def above(t):
+        lat, lon, h = _geodetic(s + t * d)
+        return h - slope_per_col * (lon - 10.0) / 1e-5            # H is linear in longitude on this grid
+
+    t = _root(above, 599_000.0, 600_100.0)
+    for method in ("iterative", "exact", "following"):
+        res = pi.intersect(dsm, s, d, method=method)
+        assert res.status[0] == pi.DSMStatus.HIT, method
+        assert abs(res.height[0] - res.surface_height[0]) <= 1e-6, method
+        assert res.distance[0] == pytest.approx(t, abs=1e-5), method
+
+
+@pytest.mark.parametrize("method", ["following", "exact"])
+def test_ray_entering_the_grids_side_below_its_top_hits_the_edge(method):
+    """The surface ends at the grid's edge ("nearest": half a cell beyond the first
+    centre): a ray that enters through the west side at h = 20 m, where the edge column
+    is 50 m tall, hits the side at the edge (mutant: the no-data gap's margin dropped,
+    and the following reported a hit outside the grid at h = 50 with no surface height)."""
+    h = np.zeros((200, 200))
+    h[:, :5] = 50.0
+    dsm = pi.GeodeticDSM.from_array(h, 45.0, 10.0, 1e-5, 1e-5, interpolation="nearest")
+    edge = 10.0 - 0.5e-5
+    s, d = _ray_to(45.001, edge, 20.0, math.radians(60.0), 90.0)
+    res = pi.intersect(dsm, s, d, method=method)
+    assert res.status[0] == pi.DSMStatus.HIT
+    assert res.lon[0] == pytest.approx(edge, abs=1e-9)
+    assert res.height[0] == pytest.approx(20.0, abs=1e-5) and res.surface_height[0] == 50.0
+    assert res.distance[0] == pytest.approx(600e3, abs=1e-4)
+
+
+@pytest.mark.parametrize("method", ["following", "exact"])
+def test_vertical_ray_beside_the_dsm_leaves_at_its_top(method):
+    """A ray straight down beside the DSM never meets it: LEFT_DSM, its event where it
+    reaches H_max = 50 m, 700 km - 50 m down (mutant: the event put on the ellipsoid)."""
+    dsm = _block_dsm()
+    s = pi.geodetic_to_ecef(45.001, 9.99, 7e5)
+    res = pi.intersect(dsm, s, -_enu(45.001, 9.99)[2], method=method)
+    assert res.status[0] == pi.DSMStatus.LEFT_DSM
+    assert res.event_height[0] == pytest.approx(50.0, abs=1e-6)
+    assert res.event_distance[0] == pytest.approx(7e5 - 50.0, abs=1e-6)
+
+
+def test_iterative_oscillation_stops_at_the_first_repeated_level():
+    """On the block's wall the iteration visits the levels 0, 50, 0: it stops when a
+    level first repeats, with p at the last level before the repeat, the h = 50 crossing
+    (docs/status-codes.md; mutant: the first level left out of the comparison, and the
+    cycle was found one round later, at h = 0 after 10 steps instead of 7)."""
+    dsm = _block_dsm()
+    s, d = _ray_to(45.001, 10.0 + 109e-5, 0.0, math.radians(30.0), 90.0)
+    res = pi.intersect(dsm, s, d, method="iterative")
+    t50 = _root(lambda t: _geodetic(s + t * d)[2] - 50.0, 599_000.0, 600_000.0)
+    assert res.status[0] == pi.DSMStatus.OSCILLATION
+    assert res.height[0] == pytest.approx(50.0, abs=1e-5)
+    assert res.distance[0] == pytest.approx(t50, abs=1e-4)
+
+
+def _unit(lat, lon):
+    la, lo = np.radians(lat), np.radians(lon)
+    return np.array([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)])
+
+
+@pytest.mark.parametrize("side", [+1, -1])
+def test_narrow_cone_edge_on_a_cell_centre(side):
+    """The footprint is every cell with cos psi >= zeta: with the cone's edge 1e-12 (in
+    cos psi) beyond or short of a cell centre at psi = 1e-4 rad, that cell is in or out
+    (the exhaustive-search test used zeta <= 0.999, where the search's slack hides under
+    its margin; mutant: the slack's sign flipped, and the cell outside came in)."""
+    R0 = 3390.0
+    cells = pi.CellTable(pi.DEM.from_array(np.full((360, 720), R0)), 0.5)
+    uc = _unit(0.25, 0.25)                                       # the centre of cell (row 180, column 0)
+    R = (R0 + 400.0) * _unit(0.25, 0.25 + np.degrees(1.2e-5) / np.cos(np.radians(0.25)))
+    d = R - R0 * uc
+    cos_psi = d @ R / (np.linalg.norm(d) * np.linalg.norm(R))
+    fp = pi.footprint(cells, R, zeta=cos_psi - side * 1e-12)
+    k = int(cells.index(0.25, 0.25))
+    assert list(fp.cell) == ([k] if side > 0 else [])
+
+
+@pytest.mark.parametrize("beyond", [5e-8, -5e-8])
+def test_horizon_edge_on_a_cell_centre(beyond):
+    """zeta = 0: the footprint is every cell the spacecraft is above the horizon of
+    (d . u > 0). A spacecraft 1.7 m over a 3,390 km sphere (horizon 1e-3 rad) with a
+    cell centre 5e-8 rad beyond or inside its horizon (mutant: the horizon slack's sign
+    flipped, and the cell beyond came in)."""
+    R0 = 3390.0
+    cells = pi.CellTable(pi.DEM.from_array(np.full((360, 720), R0)), 0.5)
+    uc = _unit(0.25, 0.25)
+    gh = 1e-3
+    g0 = gh + beyond
+    dl = 2 * np.arcsin(np.sin(g0 / 2) / np.cos(np.radians(0.25)))
+    R = R0 / np.cos(gh) * _unit(0.25, 0.25 + np.degrees(dl))
+    assert np.sign((R - R0 * uc) @ uc) == -np.sign(beyond)       # the construction's own check
+    fp = pi.footprint(cells, R, zeta=0.0)
+    k = int(cells.index(0.25, 0.25))
+    assert (k in set(fp.cell)) == (beyond < 0)
+
+
+def test_a_last_spectrum_with_an_empty_footprint():
+    """Two spectra, the second over a cell corner with a 0.01-deg cone that holds no
+    cell centre: the result has one pair, of the first spectrum, and counts [1, 0]
+    (mutant: the pair-offset check '>' made '>=', and the call raised)."""
+    R0 = 3390.0
+    cells = pi.CellTable(pi.DEM.from_array(np.full((360, 720), R0)), 0.5)
+    R = np.array([(R0 + 400) * _unit(0.25, 0.25), (R0 + 400) * _unit(10.5, 20.5)])
+    fp = pi.footprint(cells, R, zeta=np.cos(np.radians(0.01)))
+    assert list(fp.spectrum) == [0] and list(fp.cell) == [int(cells.index(0.25, 0.25))]
+    assert list(fp.counts()) == [1, 0] and fp.n_spectra == 2
+
+
+def test_wall_texture_with_an_unknown_roof_edge_is_the_mean():
+    """walls="interpolate" mixes the ortho values at the wall's foot and at its roof edge
+    by the hit's height; where the roof edge's height is no-data, the mix is the mean of
+    the two values (docs/simulation-notes.md note 2; mutant: the fallback t = 0, the
+    ground's value). Roof 200, ground 50: every wall pixel is 125."""
+    from planet_intersect.synthetic_dsm import oblique_pushbroom
+
+    lat0, lon0, n = 36.6, -84.3, 120
+    dlat, dlon = metre_steps(lat0)
+    h = np.zeros((n, n))
+    h[50:70, 40:80] = 20.0
+    h[50:58, 78] = np.nan                 # no data on the roof, two cells inside the east wall, rows 50-57
+    lat_first = lat0 + (n - 1) * dlat
+    dsm = pi.GeodeticDSM.from_array(h, lat_first, lon0, -dlat, dlon, interpolation="bilinear")
+    vals = np.where(np.isfinite(h) & (h > 0), 200.0, 50.0)
+    vals[50:58, 78] = 200.0
+    ortho = pi.OrthoImage.from_array(vals, lat_first, lon0, -dlat, dlon)
+    scene = dict(heights=np.nan_to_num(h), ground=np.zeros_like(h), lat_first=lat_first, lon_first=lon0,
+                 dlat=-dlat, dlon=dlon)
+    sensor = pi.Pushbroom(*oblique_pushbroom(scene, zenith=9.0, azimuth=90.0, margin=10))
+    sim = pi.simulate_image(dsm, ortho, sensor, occlusion=False, ground=np.zeros_like(h))
+    row = 44                                           # image line 44 sees scene row 54
+    wall = np.flatnonzero((sim.surface[row] == 2) & (sim.height[row] > 1.0))   # above the wall's foot
+    assert len(wall) == 4
+    np.testing.assert_allclose(sim.lat[row, wall], lat_first - 54 * dlat, atol=0.1 * dlat)
+    np.testing.assert_array_equal(sim.image[row, wall], 125.0)
+    # the same wall where its roof edge is known (scene row 65): the ramp (1 - t) 50 + t 200, t = h / 20
+    known = np.flatnonzero((sim.surface[55] == 2) & (sim.height[55] > 1.0))
+    assert len(known) == 4
+    np.testing.assert_allclose(sim.image[55, known], 50.0 + 150.0 * sim.height[55, known] / 20.0, atol=2e-4)
