@@ -519,3 +519,245 @@ def test_wall_texture_with_an_unknown_roof_edge_is_the_mean():
     known = np.flatnonzero((sim.surface[55] == 2) & (sim.height[55] > 1.0))
     assert len(known) == 4
     np.testing.assert_allclose(sim.image[55, known], 50.0 + 150.0 * sim.height[55, known] / 20.0, atol=2e-4)
+
+
+# ================================================================ planetary DEM and the command line
+# From a second mutation review of the Python code (dem.py, geometry.py, cli.py, mola.py,
+# sim_run.py: 49 mutants, 14 gaps). Limits are those the docs state.
+
+
+def test_header_size_limit_is_999999_bytes(tmp_path):
+    """docs/dem-format.md: a header has at most 999,999 bytes (mutant: '>=' made '>')."""
+    from planet_intersect.dem import read_header
+
+    body = b"1\n3400\n0\n3400\n"
+    for size, ok in ((999_999, True), (1_000_000, False)):
+        hdr = tmp_path / f"h{size}.hdr"
+        hdr.write_bytes(body + b"#" * (size - len(body) - 1) + b"\n")
+        assert hdr.stat().st_size == size
+        if ok:
+            assert read_header(hdr)["ppd"] == 1
+        else:
+            with pytest.raises(pi.DEMError, match="999999"):
+                read_header(hdr)
+
+
+def test_ppd_limit_is_inclusive(tmp_path):
+    """ppd must be in 1..1000000: the upper end is accepted (mutant: '<=' made '<')."""
+    from planet_intersect.dem import read_header
+
+    (tmp_path / "a.hdr").write_text("1000000\n3400\n0\n3400\n")
+    assert read_header(tmp_path / "a.hdr")["ppd"] == 1_000_000
+    (tmp_path / "b.hdr").write_text("1000001\n3400\n0\n3400\n")
+    with pytest.raises(pi.DEMError, match="ppd"):
+        read_header(tmp_path / "b.hdr")
+
+
+def test_rmax_at_most_twice_the_largest_radius():
+    """rmax may exceed the largest radius by a factor 2 at most (mutant: 4)."""
+    r = np.full((180, 360), 100.0)
+    assert pi.DEM.from_array(r, rmax=200.0).rmax == 200.0
+    with pytest.raises(pi.DEMError, match="rmax"):
+        pi.DEM.from_array(r, rmax=201.0)
+
+
+def test_radii_within_a_factor_1e6():
+    """Radii must lie within a factor 1e6 of each other (mutant: 1e8)."""
+    r = np.full((180, 360), 1.0)
+    r[10, 10] = 1.0000001e-6
+    pi.DEM.from_array(r)
+    r[10, 10] = 1e-7
+    with pytest.raises(pi.DEMError, match="factor"):
+        pi.DEM.from_array(r)
+
+
+def test_write_never_replaces_a_lone_dem_file(tmp_path):
+    """DEM.write replaces no existing file: a NAME.dem without its NAME.hdr is kept, byte
+    for byte (mutant: only the .hdr checked, and 13 bytes of someone's data became a
+    259,200-byte grid)."""
+    (tmp_path / "x.dem").write_bytes(b"precious data")
+    dem = pi.DEM.from_array(np.full((180, 360), 100.0, dtype=np.float32))
+    with pytest.raises(FileExistsError, match="x.dem"):
+        dem.write(tmp_path / "x")
+    assert (tmp_path / "x.dem").read_bytes() == b"precious data"
+    assert not (tmp_path / "x.hdr").exists()
+
+
+def test_dem_file_rewritten_in_place_is_refused(tmp_path):
+    """check_file refuses a .dem rewritten since DEM.read at the same size (mutant: size
+    compared only, and NaN radii that were never checked were used)."""
+    import os
+
+    pi.DEM.from_array(np.full((180, 360), 100.0, dtype=np.float32)).write(tmp_path / "x")
+    dem = pi.DEM.read(tmp_path / "x")
+    st = (tmp_path / "x.dem").stat()
+    with open(tmp_path / "x.dem", "r+b") as fh:
+        fh.write(np.full(3600, np.nan, dtype="<f4").tobytes())
+    os.utime(tmp_path / "x.dem", ns=(st.st_atime_ns, st.st_mtime_ns + 10_000_000))
+    with pytest.raises(pi.DEMError, match="rewritten|changed"):
+        dem.check_file()
+    with pytest.raises(pi.DEMError):
+        dem.radius(-89.9, 0.0)
+
+
+@pytest.mark.parametrize("dh, dv", [(0.0, 0.01), (0.01, 0.0)])
+def test_detector_pixel_spacing_zero_is_refused(dh, dv):
+    """detector_los: spacings in (0, pi] (mutant: 0 accepted, 9 pixels in 3 directions)."""
+    from planet_intersect.geometry import detector_los
+
+    with pytest.raises(ValueError, match="dh|dv"):
+        detector_los([0, 0, -1], [0, 1, 0], 3, 3, dh, dv)
+
+
+def test_detector_field_beyond_90_degrees_is_refused():
+    """detector_los: eq. 18's sin() folds pixels back past pi/2 from l0, so a half field
+    0.5 (n - 1) d above pi/2 is refused and one below accepted (mutant: pi)."""
+    from planet_intersect.geometry import detector_los
+
+    d = math.pi / 100
+    los = detector_los([0, 0, -1], [0, 1, 0], 101, 1, d * 0.999, 0.01)        # half field 0.999 pi/2
+    ang = np.degrees(np.arccos(np.clip(los @ np.array([0, 0, -1.0]), -1, 1)))
+    assert np.all(np.diff(ang[:51]) < 0) and np.all(np.diff(ang[50:]) > 0)     # no pixel folds back
+    with pytest.raises(ValueError, match="dh|field|pi"):
+        detector_los([0, 0, -1], [0, 1, 0], 101, 1, d * 1.001, 0.01)
+
+
+def test_exact_mode_by_the_south_pole_sees_the_pole_mean():
+    """The pole node carries the mean of its neighbouring row (section 2.2): row 0 half at
+    110 and half at 90 makes a 100 pole, and a slanted ray near it enters at the same
+    point in the exact mode as in the stepping (mutant: the pyramid's pole value taken
+    from row 1, the exact hit 5 degrees later; only the 4-minute exhaustive test saw it)."""
+    r = np.full((180, 360), 90.0)
+    r[0, :180] = 110.0
+    dem = pi.DEM.from_array(r)
+    assert float(dem.radius(-90.0, 0.0)) == pytest.approx(100.0, abs=1e-12)
+    s = 200 * _unit(-89.8, 270.0) + 150 * np.array([-math.sin(math.radians(270)), math.cos(math.radians(270)), 0])
+    l = -s + 95 * _unit(-89.8, 270.0)
+    step = pi.intersect(dem, s, l, method="stepping")
+    exact = pi.intersect(dem, s, l, method="exact")
+    assert step.hit[0] and exact.hit[0]
+    assert step.lat[0] < -89.5                         # in the polar cap, above the 90 floor
+    np.testing.assert_allclose(exact.p[0], step.p[0], atol=1e-6)
+
+
+def test_cli_failed_examples_leave_no_run_folder(tmp_path, capsys, monkeypatch):
+    """A subcommand that fails after its run folder is made removes it (cli._run_dir;
+    mutant: left behind), and says why in one line: example 1 on a unit-radius DEM sees
+    no surface (np.polyfit's 'expected non-empty vector for x' before)."""
+    from planet_intersect.cli import main
+
+    pytest.importorskip("matplotlib")
+    pi.DEM.from_array(np.full((180, 360), 1.0, dtype=np.float32), f=0.1, re=1.0).write(tmp_path / "unit")
+    monkeypatch.chdir(tmp_path)
+    assert main(["examples", "olympus", "--dem", "unit.hdr", "--out", "ex"]) == 2
+    err = capsys.readouterr().err
+    assert "pixels hit the DEM" in err and err.count("\n") == 1
+    assert not list((tmp_path / "ex").glob("run-*"))
+
+
+def test_cli_run_names_the_line_past_the_first_chunk(tmp_path, capsys, monkeypatch):
+    """run reads rays in chunks of 200,000: an error about ray 200,001 names line 200001
+    (mutant: line 1), on its own line after the part-way progress bar."""
+    from planet_intersect.cli import main
+
+    pi.DEM.from_array(np.full((180, 360), 100.0, dtype=np.float32)).write(tmp_path / "d")
+    with open(tmp_path / "rays.txt", "w") as fh:
+        fh.write("0 0 300 0 0 -1\n" * 200_000)
+        fh.write("0 0 50 0 0 -1\n")                    # the spacecraft inside the planet
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", "d.hdr", "rays.txt", "--out", "o"]) == 2
+    err = capsys.readouterr().err
+    last = err.replace("\r", "\n").strip().splitlines()[-1]
+    assert last.startswith("planet-intersect: error: s on line 200001 of rays.txt"), err[-300:]
+    assert "100.0%" not in err
+    assert not list((tmp_path / "o").glob("run-*"))
+
+
+def _cli_scene(tmp_path, n):
+    from planet_intersect.synthetic_dsm import metre_steps
+
+    lat0, lon0 = 36.6, -84.2
+    dlat, dlon = metre_steps(lat0)
+    lat_first = lat0 + (n - 1) * dlat
+    grid = dict(heights=np.full((n, n), 80.0), lat_first=lat_first, lon_first=lon0, dlat=-dlat, dlon=dlon)
+    np.savez(tmp_path / "dsm.npz", interpolation="nearest", **grid)
+    np.savez(tmp_path / "ortho.npz", values=np.ones((n, n)), lat_first=lat_first, lon_first=lon0, dlat=-dlat,
+             dlon=dlon)
+    return grid, (lat0 + 0.5 * (n - 1) * dlat, lon0 + 0.5 * (n - 1) * dlon)
+
+
+def test_cli_orbit_pixels_are_square(tmp_path):
+    """simulate --orbit without --line-period: square pixels, the nadir GSD over the
+    ground speed (--help). The ground step between lines equals the step between pixels
+    to 3 % (mutant: the period computed for r = a, ratio 0.87)."""
+    xr = pytest.importorskip("xarray")
+    pytest.importorskip("h5netcdf")
+    from planet_intersect.cli import main
+
+    _, c = _cli_scene(tmp_path, 200)
+    assert main(["simulate", "--dsm", str(tmp_path / "dsm.npz"), "--ortho", str(tmp_path / "ortho.npz"), "--orbit",
+                 "--target", f"{c[0]},{c[1]}", "--lines", "5", "--pixels", "5", "--ifov", "8.4e-5",
+                 "--no-occlusion", "--quiet", "--out", str(tmp_path / "o")]) == 0
+    ds = xr.open_dataset(next((tmp_path / "o").glob("run-*/simulated.nc")), engine="h5netcdf")
+    lat, lon = ds["lat"].values, ds["lon"].values
+    m_lat = math.radians(1) * 6371e3
+    m_lon = m_lat * math.cos(math.radians(c[0]))
+
+    def step(i0, j0, i1, j1):
+        return math.hypot((lat[i1, j1] - lat[i0, j0]) * m_lat, (lon[i1, j1] - lon[i0, j0]) * m_lon)
+
+    along, across = step(2, 2, 3, 2), step(2, 2, 2, 3)
+    assert across == pytest.approx(1.0, rel=0.05)      # 8.4e-5 deg at ~680 km: ~1 m
+    assert along / across == pytest.approx(1.0, abs=0.03)
+
+
+def test_cli_altitude_beside_geometry_is_refused(tmp_path, capsys):
+    """--geometry takes the whole sensor from its file: --altitude beside it is refused,
+    not ignored (mutant: dropped from the conflicts, exit 0 and a run folder)."""
+    from planet_intersect.cli import main
+    from planet_intersect.synthetic_dsm import oblique_pushbroom
+
+    grid, _ = _cli_scene(tmp_path, 24)
+    s, l = oblique_pushbroom(grid, zenith=9.0, azimuth=90.0)[:2]
+    np.savez(tmp_path / "push.npz", s=s, l=l)
+    assert main(["simulate", "--dsm", str(tmp_path / "dsm.npz"), "--ortho", str(tmp_path / "ortho.npz"),
+                 "--geometry", str(tmp_path / "push.npz"), "--altitude", "500000", "--no-occlusion", "--quiet",
+                 "--out", str(tmp_path / "o")]) == 2
+    assert "--altitude" in capsys.readouterr().err
+    assert not list((tmp_path / "o").glob("run-*"))
+
+
+def test_fetch_mola_refuses_an_existing_img_of_another_size(tmp_path):
+    """fetch_mola: an existing PRODUCT.img must have exactly the product's size (180 x 360
+    ppd^2 x 2 bytes); a 5-ppd grid under the 4-ppd name is refused, never imported
+    (mutant: only a smaller file refused)."""
+    from planet_intersect.mola import fetch_mola
+
+    for ppd in (5, 3):
+        np.zeros((180 * ppd, 360 * ppd), dtype=">i2").tofile(tmp_path / "megr90n000cb.img")
+        with pytest.raises(FileExistsError, match="megr90n000cb"):
+            fetch_mola(tmp_path, product="megr90n000cb", base_url="file:///nonexistent")
+        assert not list(tmp_path.glob("*.hdr"))
+
+
+def test_fig4_counts_add_up():
+    """The Fig. 4 counts: every iterative pixel without a hit is 'not converged'
+    (OSCILLATION, NOT_CONVERGED, STEP_LIMIT: white in the paper) or 'left the DSM', and
+    the two add up to the pixels without a hit (mutants: OSCILLATION not counted; the
+    not-converged counted twice)."""
+    import tempfile
+    from pathlib import Path
+
+    from planet_intersect.dsm import DSMStatus
+    from planet_intersect.sim_run import fig4, paper_experiment
+
+    pytest.importorskip("matplotlib")
+    exp = paper_experiment(size=96, methods=("exact", "iterative"), threads=1)
+    it = exp["sims"]["iterative"]
+    st = np.asarray(it.status)
+    stuck = np.isin(st, [DSMStatus.OSCILLATION, DSMStatus.NOT_CONVERGED, DSMStatus.STEP_LIMIT])
+    with tempfile.TemporaryDirectory() as d:
+        c = fig4(exp, Path(d) / "fig4.png")
+    assert stuck.sum() > 0
+    assert c["iterative_not_converged"] == int(stuck.sum())
+    assert c["iterative_not_converged"] + c["iterative_left_dsm"] == int((~np.asarray(it.valid)).sum())

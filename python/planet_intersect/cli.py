@@ -211,10 +211,19 @@ class Progress:
         total = total or self.total
         frac = min(done / total, 1.0) if total else 1.0
         bar = "#" * int(30 * frac)
-        sys.stderr.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}% ({time.perf_counter() - self.t0:.1f} s)")
-        if frac >= 1.0:
+        shown = math.floor(1000 * frac) / 10          # 200,000 of 200,001 is 99.9 %, not "100.0"
+        sys.stderr.write(f"\r{self.label} [{bar:<30}] {shown:5.1f}% ({time.perf_counter() - self.t0:.1f} s)")
+        self.open = frac < 1.0
+        if not self.open:
             sys.stderr.write("\n")
         sys.stderr.flush()
+
+    def close(self) -> None:
+        """End a bar left part-way (before an error message, which then has its own line)."""
+        if self.show and getattr(self, "open", False):
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+            self.open = False
 
 
 def intersect_in_chunks(dem, s, l, chunk: int = 200_000, where=None, **kwargs):
@@ -232,6 +241,7 @@ def intersect_in_chunks(dem, s, l, chunk: int = 200_000, where=None, **kwargs):
         try:
             parts.append(intersect(dem, s[a:a + chunk], l[a:a + chunk], **kwargs))
         except ValueError as exc:
+            bar.close()
             if where is None:
                 raise
             name, lines = where
@@ -935,7 +945,7 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
     d = sub.add_parser("demo", help="oblique view of a synthetic Mars with a shield volcano (built-in default)")
     d.add_argument("--out", default="demo-output", help="results go to a new run-NNN folder here (default: demo-output)")
-    d.add_argument("--ppd", type=int, default=4, help="DEM pixels per degree (default 4)")
+    d.add_argument("--ppd", type=int, default=4, help="DEM pixels per degree, 1..64 (default 4)")
     d.add_argument("--pixels", type=int, default=101, help="detector pixels per side (default 101, as the paper's Fig. 8)")
     d.set_defaults(func=_demo)
     r = sub.add_parser("run", help="intersect the rays of a text file (sx sy sz lx ly lz per line) with a DEM")

@@ -111,6 +111,11 @@ def olympus(dem: DEM, *, nh: int = 101, nv: int = 101, pixel: float = 0.015, alt
     F_obs = F + rng.standard_normal(F.shape) * noise_K * dFdT
     Tb = brightness_temperature(F_obs, wavelength)
     ok = res.hit
+    if np.count_nonzero(ok) < 3:
+        # (np.polyfit's own "expected non-empty vector for x" said nothing of the DEM: a review)
+        raise ValueError(f"example 1 (Olympus Mons): {int(np.count_nonzero(ok))} of {ok.size} pixels hit the DEM, "
+                         "at least 3 are needed for the lapse-rate fit; the example is Mars in km (mean radius "
+                         f"{MARS_MEAN_RADIUS} km), and this DEM's rmax is {dem.rmax:g}")
     (slope, icpt), cov = np.polyfit(z[ok], Tb[ok], 1, cov=True)
     return OlympusResult(s=s, los=los, nh=nh, nv=nv, res=res, z=z, brightness=np.where(ok, Tb, np.nan),
                          T0=T0, lapse=lapse, T0_fit=float(icpt), lapse_fit=float(-slope),
