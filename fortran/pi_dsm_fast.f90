@@ -38,7 +38,8 @@ module pi_dsm_fast
   use pi_kinds, only: dp
   use pi_status
   use pi_vector, only: pi, axis_distance, far_distance
-  use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, pt_ok, pt_nodata, pt_outside
+  use pi_dsm, only: dsm_t, dsm_height, dsm_grid_uv, dsm_box_bound, interp_nearest, interp_bilinear, pt_ok, &
+                    pt_nodata, pt_outside
   use pi_follow, only: dsm_ray_t, ray_geo, level_crossing_back, ellipsoid_entry, set_hit, set_event, settle_start, &
                        refine_tol, newton_tol
   use pi_geodetic, only: ecr_to_geodetic_near
@@ -329,6 +330,22 @@ contains
     u0 = min(pa%u, pb%u) - pc%du
     u1 = max(pa%u, pb%u) + pc%du
     call dsm_box_bound(dsm, u0, u1, v0, v1, hb, out)
+    if (dsm%interp == interp_bilinear .and. .not. out .and. .not. dsm%global .and. hb < huge(1.0_dp)) then
+      ! a box within at most 2 x 2 cells whose nodes all have one height: the bilinear surface is
+      ! that height all over it, a flat top as "nearest" has (cell = 1: Newton on h - hb). Near a
+      ! tangency over a flat roof the bilinear leaf never decided (h - H within the bounds' rounding
+      ! for metres: STEP_LIMIT after ~101,000 segments; shin-park-notes, "Thirteenth look")
+      if (u0 >= 0.0_dp .and. v0 >= 0.0_dp .and. u1 <= dsm%ncols - 1 .and. v1 <= dsm%nrows - 1) then
+        cj0 = int(u0); cj1 = min(int(u1) + 1, dsm%ncols - 1)
+        ci0 = int(v0); ci1 = min(int(v1) + 1, dsm%nrows - 1)
+        if (ci1 - ci0 <= 2 .and. cj1 - cj0 <= 2) then
+          if (flat_nodes(dsm, ci0, ci1, cj0, cj1)) then
+            hb = dsm%hgt(cj0 + 1, ci0 + 1)
+            cell = 1
+          end if
+        end if
+      end if
+    end if
     if (dsm%interp == interp_nearest .and. .not. out .and. .not. dsm%global .and. hb < huge(1.0_dp)) then
       ci0 = ceiling(v0 - 0.5_dp); ci1 = floor(v1 + 0.5_dp)
       cj0 = ceiling(u0 - 0.5_dp); cj1 = floor(u1 + 0.5_dp)
@@ -383,6 +400,25 @@ contains
     end do
     flat = .true.
   end function flat_cells
+
+  !> True when the nodes of rows ci0..ci1, columns cj0..cj1 (inside the grid)
+  !> all have one height (not NaN): a bilinear surface equal to it on their cells.
+  pure function flat_nodes(dsm, ci0, ci1, cj0, cj1) result(flat)
+    type(dsm_t), intent(in) :: dsm
+    integer, intent(in) :: ci0, ci1, cj0, cj1
+    logical :: flat
+    real(dp) :: h0
+    integer :: i, j
+    flat = .false.
+    h0 = dsm%hgt(cj0 + 1, ci0 + 1)
+    if (ieee_is_nan(h0)) return
+    do i = ci0, ci1
+      do j = cj0, cj1
+        if (.not. (dsm%hgt(j + 1, i + 1) == h0)) return
+      end do
+    end do
+    flat = .true.
+  end function flat_nodes
 
   !> Within one bilinear cell with data at its four nodes: the first r in
   !> [pa, pb] where the lower bound of h (the larger tangent, a line on each
@@ -1262,7 +1298,7 @@ contains
           end if
         end if
       end if
-      if (level == 2) then                                ! one bilinear cell: the candidate in closed form
+      if (level == 2 .and. cell < 0) then                 ! one bilinear cell: the candidate in closed form
         call cell_solve(dsm, pc, pa, pb, cst, rstar)
         if (cst == 1) then
           call next_segment(pa, pb, stack, nst)
