@@ -339,7 +339,7 @@ contains
         cj0 = int(u0); cj1 = min(int(u1) + 1, dsm%ncols - 1)
         ci0 = int(v0); ci1 = min(int(v1) + 1, dsm%nrows - 1)
         if (ci1 - ci0 <= 2 .and. cj1 - cj0 <= 2) then
-          if (flat_nodes(dsm, ci0, ci1, cj0, cj1)) then
+          if (flat_cells(dsm, ci0, ci1, cj0, cj1, dsm%hgt(cj0 + 1, ci0 + 1))) then
             hb = dsm%hgt(cj0 + 1, ci0 + 1)
             cell = 1
           end if
@@ -384,7 +384,9 @@ contains
 
   !> True when every cell of rows ci0..ci1, columns cj0..cj1 (inside the
   !> grid) has the height hb ("nearest": the surface is then hb all over
-  !> their union, shared boundaries included).
+  !> their union, shared boundaries included; "bilinear", called with node
+  !> indices: the four nodes of each of their cells are hb, and so is the
+  !> surface on those cells). A NaN hb is never flat.
   pure function flat_cells(dsm, ci0, ci1, cj0, cj1, hb) result(flat)
     type(dsm_t), intent(in) :: dsm
     integer, intent(in) :: ci0, ci1, cj0, cj1
@@ -400,25 +402,6 @@ contains
     end do
     flat = .true.
   end function flat_cells
-
-  !> True when the nodes of rows ci0..ci1, columns cj0..cj1 (inside the grid)
-  !> all have one height (not NaN): a bilinear surface equal to it on their cells.
-  pure function flat_nodes(dsm, ci0, ci1, cj0, cj1) result(flat)
-    type(dsm_t), intent(in) :: dsm
-    integer, intent(in) :: ci0, ci1, cj0, cj1
-    logical :: flat
-    real(dp) :: h0
-    integer :: i, j
-    flat = .false.
-    h0 = dsm%hgt(cj0 + 1, ci0 + 1)
-    if (ieee_is_nan(h0)) return
-    do i = ci0, ci1
-      do j = cj0, cj1
-        if (.not. (dsm%hgt(j + 1, i + 1) == h0)) return
-      end do
-    end do
-    flat = .true.
-  end function flat_nodes
 
   !> Within one bilinear cell with data at its four nodes: the first r in
   !> [pa, pb] where the lower bound of h (the larger tangent, a line on each
