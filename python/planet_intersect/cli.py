@@ -203,6 +203,7 @@ class Progress:
     def __init__(self, total: int, label: str, min_total: int = 1):
         self.total, self.label = total, label
         self.show = total >= min_total
+        self.open = False                              # a bar drawn part-way, its line not ended
         self.t0 = time.perf_counter()
 
     def __call__(self, done: int, total: int | None = None) -> None:
@@ -220,7 +221,7 @@ class Progress:
 
     def close(self) -> None:
         """End a bar left part-way (before an error message, which then has its own line)."""
-        if self.show and getattr(self, "open", False):
+        if self.open:
             sys.stderr.write("\n")
             sys.stderr.flush()
             self.open = False
