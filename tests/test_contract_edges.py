@@ -61,16 +61,8 @@ def test_boresight_follows_the_documented_3_2_1_rotation(roll, pitch, yaw, lat):
                                   roll=roll, pitch=pitch, yaw=yaw)
     s, l = sen.rays(0, 1)
     s, l = s[0], l[0] / np.linalg.norm(l[0])
-    # the ellipsoid normal through s, from the closed form of its latitude by iteration (own code)
-    rho = math.hypot(s[0], s[1])
-    e2 = WGS84_F * (2 - WGS84_F)
-    phi = math.atan2(s[2], rho * (1 - e2))
-    for _ in range(10):
-        n_rad = WGS84_A / math.sqrt(1 - e2 * math.sin(phi) ** 2)
-        h = rho / math.cos(phi) - n_rad
-        phi = math.atan2(s[2], rho * (1 - e2 * n_rad / (n_rad + h)))
-    lam = math.atan2(s[1], s[0])
-    z = -np.array([math.cos(phi) * math.cos(lam), math.cos(phi) * math.sin(lam), math.sin(phi)])
+    # the ellipsoid normal through s, from the test's own geodesy
+    z = -_unit(*_geodetic(s)[:2])
     v = sen.velocity[0]
     x = v - (v @ z) * z
     x /= np.linalg.norm(x)
