@@ -6,6 +6,8 @@ written independently from the contract."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -211,6 +213,58 @@ def test_blocks_threads_and_memmap_give_identical_results(box, tmp_path):
         np.testing.assert_array_equal(getattr(c, name), np.asarray(getattr(d, name)), err_msg=name)
     with pytest.raises(FileExistsError, match="maps"):
         pi.simulate_image(dsm, ortho, sensor, out=tmp_path / "maps")
+
+
+def test_out_files_are_written_block_by_block_and_complete(box, tmp_path):
+    """out=DIR writes each block of lines from a reused buffer into its .npy file
+    (simulation note 9): the files are whole, plain .npy files (read without a
+    memory map) equal to the in-memory result for an RGB ortho-image, a last
+    block shorter than the others and a block longer than the image; the result
+    maps them writable; a failed later block leaves no folder."""
+    dsm, ortho, scene, _ = box
+    s0, l0 = oblique_pushbroom(scene, zenith=9.0, azimuth=90.0, margin=0)
+    lc = l0[:, l0.shape[1] // 2][:, None, :]
+    sensor = pi.Pushbroom(s0, lc + 1.5 * (l0 - lc))          # lines 25 % wider than the scene: misses too
+    vals = ortho.values
+    rgb = pi.OrthoImage.from_array(np.stack([vals, 0.5 * vals, 255.0 - vals], axis=-1), scene["lat_first"],
+                                   scene["lon_first"], scene["dlat"], scene["dlon"])
+    ref = pi.simulate_image(dsm, rgb, sensor, threads=1, occlusion=False)
+    nl, npx = sensor.shape
+    assert nl % 9 != 0
+    expect = {"image": (np.float32, (nl, npx, 3)), "valid": (np.bool_, (nl, npx)), "lat": (np.float64, (nl, npx)),
+              "lon": (np.float64, (nl, npx)), "height": (np.float64, (nl, npx)),
+              "distance": (np.float64, (nl, npx)), "incidence": (np.float64, (nl, npx)),
+              "local_incidence": (np.float64, (nl, npx)), "surface": (np.int8, (nl, npx)),
+              "ortho_value": (np.bool_, (nl, npx)), "status": (np.int8, (nl, npx)), "p": (np.float64, (nl, npx, 3))}
+    for blk in (9, 10 * nl):
+        out = tmp_path / f"maps{blk}"
+        sim = pi.simulate_image(dsm, rgb, sensor, threads=1, occlusion=False, block_lines=blk, out=out)
+        assert sorted(q.name for q in out.iterdir()) == sorted(f"{k}.npy" for k in expect)
+        for name, (dtype, shape) in expect.items():
+            path = out / f"{name}.npy"
+            plain = np.load(path)                              # no memory map: the file itself
+            assert plain.dtype == dtype and plain.shape == shape and not np.isfortran(plain), name
+            offset = np.load(path, mmap_mode="r").offset
+            assert path.stat().st_size == offset + plain.nbytes, name        # nothing after the data
+            np.testing.assert_array_equal(plain, getattr(ref, name), err_msg=name)
+            got = getattr(sim, name)
+            assert isinstance(got, np.memmap) and got.mode == "r+" and Path(got.filename) == path.resolve(), name
+        assert 0 < ref.valid.sum() < ref.valid.size and (ref.surface == 2).any()   # hits, misses and walls
+    # a block that fails after the first ones were written: the folder goes, the error stays
+    calls = []
+
+    class Failing(pi.sensors.Sensor):
+        shape = sensor.shape
+
+        def rays(self, k0=0, k1=None):
+            calls.append(k0)
+            if len(calls) == 3:
+                raise RuntimeError("sensor broke at block 3")
+            return sensor.rays(k0, k1)
+
+    with pytest.raises(RuntimeError, match="block 3"):
+        pi.simulate_image(dsm, rgb, Failing(), occlusion=False, block_lines=9, out=tmp_path / "failed")
+    assert calls == [0, 9, 18] and not (tmp_path / "failed").exists()
 
 
 def test_box_view_from_east_roof_wall_and_hidden_ground(box):
