@@ -777,20 +777,19 @@ def _trace_raw(dsm: GeodeticDSM, s, l, method: str, threads, fan: int = 0):
     ``FAN_RUNS`` (pi.intersect): the groups are the runs of consecutive rays
     with one focal point (s equal bit for bit), whatever their lengths."""
     from ._ext import core as _core
-    from .intersect import FAR_LIMIT, _unit_scaled, as_vectors, check_threads
+    from .intersect import FAR_LIMIT, _as_vectors_n2, _unit_scaled, check_threads
 
-    s = as_vectors(s, "s")
-    l = as_vectors(l, "l")
+    s, n2s = _as_vectors_n2(s, "s")
+    l, n2l = _as_vectors_n2(l, "l")
     if len(s) != len(l) and len(s) != 1 and len(l) != 1:
         raise ValueError(f"s and l: {len(s)} positions do not broadcast against {len(l)} directions")
-    with np.errstate(over="ignore"):
-        far = np.einsum("ij,ij->i", s, s) > (FAR_LIMIT * dsm.a) ** 2
+    far = n2s > (FAR_LIMIT * dsm.a) ** 2                # (n2s: einsum("ij,ij->i", s, s), inf on overflow)
     if far.any():
         k = int(np.argmax(far))
         raise ValueError(f"s[{k}] = {s[k]} is farther than {FAR_LIMIT:g} semi-major axes from the centre "
                          "(the line's position at the body would be lost to rounding)")
-    _check_depth(dsm, s)
-    l = _unit_scaled(l)
+    _check_depth(dsm, s, n2s)
+    l = _unit_scaled(l, n2l)
     n = 0 if min(len(s), len(l)) == 0 else max(len(s), len(l))
     if n == 0:
         return 0, s, l, None, None, None, None, None
@@ -849,7 +848,7 @@ def _reanchor(dsm: GeodeticDSM, s: np.ndarray, l: np.ndarray):
     return np.ascontiguousarray(s2), r0
 
 
-def _check_depth(dsm: GeodeticDSM, s: np.ndarray) -> None:
+def _check_depth(dsm: GeodeticDSM, s: np.ndarray, n2: np.ndarray | None = None) -> None:
     """Refuse focal points below every height of the DSM and deeper than half the polar
     radius: below all of the surface model and nowhere near a viewpoint, where the
     geodetic coordinates stop meaning a place on the surface (at the centre of a sphere
@@ -859,8 +858,10 @@ def _check_depth(dsm: GeodeticDSM, s: np.ndarray) -> None:
 
     b = dsm.a * (1 - dsm.f)
     # depth d > b/2 below an ellipsoid that lies within radius a needs |s| < a - b/2
-    with np.errstate(over="ignore", invalid="ignore"):
-        near = np.flatnonzero(np.einsum("ij,ij->i", s, s) < (dsm.a - 0.5 * b) ** 2)
+    if n2 is None:                                    # (the rows' squared lengths, if known)
+        with np.errstate(over="ignore", invalid="ignore"):
+            n2 = np.einsum("ij,ij->i", s, s)
+    near = np.flatnonzero(n2 < (dsm.a - 0.5 * b) ** 2)
     if near.size == 0:
         return
     h = np.atleast_1d(ecef_to_geodetic(s[near], dsm.a, dsm.f)[2])

@@ -151,6 +151,12 @@ MAX_THREADS = 1024
 def as_vectors(v, name: str) -> np.ndarray:
     """``v`` as a float64 (N, 3) array of finite, non-zero vectors (a (3,) vector
     becomes (1, 3)); ValueError or TypeError naming ``name`` and the row otherwise."""
+    return _as_vectors_n2(v, name)[0]
+
+
+def _as_vectors_n2(v, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """as_vectors, and the rows' squared lengths (overflowed to inf, underflowed to 0),
+    which the DSM trace reuses instead of computing them three more times."""
     try:
         arr = np.asarray(v)
     except (TypeError, ValueError) as exc:
@@ -166,22 +172,24 @@ def as_vectors(v, name: str) -> np.ndarray:
     with np.errstate(over="ignore", under="ignore"):
         n2 = np.einsum("ij,ij->i", v, v)                 # one pass: finite, well-scaled rows pass
     if ((n2 >= _N2_MIN) & (n2 <= _N2_MAX)).all():
-        return v
+        return v, n2
     bad = ~np.isfinite(v).all(axis=1)
     if bad.any():
         raise ValueError(f"{name}[{int(np.argmax(bad))}] has NaN or Inf components: {v[np.argmax(bad)]}")
     zero = ~v.any(axis=1)
     if zero.any():
         raise ValueError(f"{name}[{int(np.argmax(zero))}] has zero length")
-    return v
+    return v, n2
 
 
-def _unit_scaled(v: np.ndarray) -> np.ndarray:
+def _unit_scaled(v: np.ndarray, n2: np.ndarray | None = None) -> np.ndarray:
     """Directions whose squared length would underflow or overflow, scaled by a
     power of two (exact: the direction is unchanged to the last bit) so that
-    their largest component lies in [0.5, 1); other rows as they are."""
-    with np.errstate(over="ignore", under="ignore"):
-        n2 = np.einsum("ij,ij->i", v, v)
+    their largest component lies in [0.5, 1); other rows as they are. ``n2``:
+    the rows' squared lengths if already known (_as_vectors_n2)."""
+    if n2 is None:
+        with np.errstate(over="ignore", under="ignore"):
+            n2 = np.einsum("ij,ij->i", v, v)
     odd = ~((n2 >= _N2_MIN) & (n2 <= _N2_MAX))
     if not odd.any():
         return v
