@@ -252,9 +252,12 @@ contains
     sl = sin(lat)
     cl = cos(lat)
     ! cos and sin of the longitude from the hit point p, whose longitude it is (to rounding), instead
-    ! of a second sincos (~2 % of a simulation's time); on the polar axis, where p has none, from lon
-    rho = sqrt(p(1) * p(1) + p(2) * p(2))
-    if (rho > 0.0_dp) then
+    ! of a second sincos (~2 % of a simulation's time); within ~1e-150 of the polar axis, where the
+    ! squares lose precision (x/rho was 1.125 at x = 2.5e-162 m: a review) or p has no longitude,
+    ! from lon
+    rho = p(1) * p(1) + p(2) * p(2)
+    if (rho >= 1.0e-300_dp) then
+      rho = sqrt(rho)
       co = p(1) / rho
       so = p(2) / rho
     else

@@ -267,6 +267,126 @@ def test_out_files_are_written_block_by_block_and_complete(box, tmp_path):
     assert calls == [0, 9, 18] and not (tmp_path / "failed").exists()
 
 
+def _open_fds() -> int:
+    import os
+
+    return len(os.listdir("/proc/self/fd"))
+
+
+@pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="counts open files through /proc/self/fd (Linux)")
+def test_out_writer_faults_found_by_a_review(box, tmp_path, monkeypatch):
+    """Five faults of the first block writer (simulation note 9), each now held:
+    a sensor shape of NumPy integers; a relative out= while rays() changes the
+    working directory; a close that fails while another error propagates, and
+    one that fails on success; a MemoryError for the block buffer. Each time
+    the error raised is the one that stopped the run, the folder is gone after
+    a failure, and no file stays open."""
+    from planet_intersect import simulate as sim_mod
+
+    dsm, ortho, scene, sensor = box
+    ref = pi.simulate_image(dsm, ortho, sensor, threads=1, occlusion=False)
+
+    class Wrapped(pi.sensors.Sensor):
+        def __init__(self, shape, on_rays=None):
+            self.shape, self.on_rays = shape, on_rays
+
+        def rays(self, k0=0, k1=None):
+            if self.on_rays is not None:
+                self.on_rays(k0)
+            return sensor.rays(k0, k1)
+
+    # NumPy integers in the shape: the header said "np.int64(100)" and np.load failed at the end
+    sim = pi.simulate_image(dsm, ortho, Wrapped(tuple(np.array(sensor.shape))), threads=1, occlusion=False,
+                            block_lines=10, out=tmp_path / "npint")
+    np.testing.assert_array_equal(np.load(tmp_path / "npint" / "image.npy"), ref.image)
+    del sim
+    # a relative out= and a sensor that changes the working directory half-way
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    monkeypatch.chdir(tmp_path / "a")
+
+    def move(k0):
+        if k0 == 50:
+            import os
+
+            os.chdir(tmp_path / "b")
+
+    sim = pi.simulate_image(dsm, ortho, Wrapped(sensor.shape, move), threads=1, occlusion=False, block_lines=10,
+                            out="rel")
+    assert Path(sim.lat.filename) == tmp_path / "a" / "rel" / "lat.npy" and not (tmp_path / "b" / "rel").exists()
+    np.testing.assert_array_equal(sim.lat, ref.lat)
+    del sim
+    # a close that fails while a sensor error propagates: the sensor's error, every file closed
+    fds = _open_fds()
+    real_close = sim_mod._BlockFile.close
+
+    def bad_close(self):
+        real_close(self)
+        if self.path.name == "lat.npy":
+            raise OSError(28, "No space left on device (simulated)")
+
+    def boom(k0):
+        if k0 == 20:
+            raise RuntimeError("sensor broke")
+
+    monkeypatch.setattr(sim_mod._BlockFile, "close", bad_close)
+    with pytest.raises(RuntimeError, match="sensor broke") as info:
+        pi.simulate_image(dsm, ortho, Wrapped(sensor.shape, boom), occlusion=False, block_lines=10,
+                          out=tmp_path / "c1")
+    assert _open_fds() == fds and not (tmp_path / "c1").exists()
+    del info
+    monkeypatch.undo()
+    # a flush that fails when the result is mapped: that error, the folder gone, nothing open
+    real_result = sim_mod._BlockFile.result
+
+    def bad_result(self):
+        if self.path.name == "height.npy":
+            raise OSError(28, "No space left on device (simulated)")
+        return real_result(self)
+
+    monkeypatch.setattr(sim_mod._BlockFile, "result", bad_result)
+    with pytest.raises(OSError, match="No space left") as info:
+        pi.simulate_image(dsm, ortho, sensor, occlusion=False, block_lines=10, out=tmp_path / "c2")
+    assert _open_fds() == fds and not (tmp_path / "c2").exists()
+    del info
+    monkeypatch.undo()
+    # no memory for a block buffer (200,000 lines of 200,000 pixels): no handle left open
+    with pytest.raises(MemoryError) as info:
+        pi.simulate_image(dsm, ortho, Wrapped((200_000, 200_000)), occlusion=False, block_lines=200_000,
+                          out=tmp_path / "c3")
+    assert _open_fds() == fds and not (tmp_path / "c3").exists()
+
+
+def test_shading_longitude_from_the_hit_point_near_the_polar_axis():
+    """shade_one takes the longitude's cos and sin from the hit point (simulation
+    note 14): rays 0 to 1e-3 m from the polar axis, nadir onto a dome on the
+    pole whose slope is 20 m per 0.001 deg of latitude, all see the slope's
+    angle atan(20 / ((M + h) 0.001 deg)) (M = a^2 / b at the pole). With the
+    squares of ~1e-162 m (denormal) it was 11.39 and 10.01 deg (a review)."""
+    a, f = 6378137.0, 1 / 298.257223563
+    b = a * (1 - f)
+    nr, nc, dl = 21, 72, 0.001
+    lats = 90.0 - (nr - 1) * dl + dl * np.arange(nr)
+    h = np.repeat((100.0 - 20000.0 * (90.0 - lats))[:, None], nc, axis=1)
+    dsm = pi.GeodeticDSM.from_array(h, lats[0], -180.0, dl, 5.0, a=a, f=f, interpolation="bilinear")
+    ortho = pi.OrthoImage.from_array(np.full((nr, nc), 100.0), lats[0], -180.0, dl, 5.0)
+    xs = [0.0, 2.5e-162, 3.1e-162, 1e-160, 1e-3]
+
+    class Raw(pi.sensors.Sensor):
+        shape = (1, len(xs))
+
+        def rays(self, k0=0, k1=None):
+            return (np.array([[x, 0.0, b + 3000.0] for x in xs]), np.tile([0.0, 0.0, -1.0], (len(xs), 1)))
+
+    sim = pi.simulate_image(dsm, ortho, Raw(), threads=1, occlusion=False, ground=np.zeros_like(h))
+    assert sim.valid.all()
+    li = sim.local_incidence[0]
+    m_h = a * a / b + sim.height[0, 0]
+    np.testing.assert_allclose(li, np.degrees(np.arctan(20.0 / (m_h * np.radians(dl)))), atol=1e-4)
+    assert np.ptp(li[:4]) < 1e-10, li                 # within 1e-160 m of the axis: one point to rounding
+    assert abs(li[4] - li[0]) < 1e-7, li              # 1 mm off it: the dome's slope 1 mm away
+
+
 def test_box_view_from_east_roof_wall_and_hidden_ground(box):
     """The box (rows 50-69, cols 40-79, 20 m) seen from the east at 9 deg: on a
     line through it, ground | roof (shifted west) | east wall | ground; the wall

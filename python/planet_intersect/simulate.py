@@ -508,15 +508,18 @@ class _BlockFile:
 
     def __init__(self, out_dir, name, shape, dtype, block_lines):
         self.path = out_dir / f"{name}.npy"
-        self.shape, self.dtype = tuple(shape), np.dtype(dtype)
+        # plain ints: a sensor's shape of NumPy integers wrote "np.int64(100)" into the header,
+        # which np.load could not parse after the whole image was done (a review)
+        self.shape, self.dtype = tuple(int(k) for k in shape), np.dtype(dtype)
+        # the buffer before the file: a MemoryError here leaves no open handle (a review)
+        self.buf = np.empty((min(int(block_lines), self.shape[0]),) + self.shape[1:], dtype=self.dtype)
+        self.row_bytes = int(np.prod(self.shape[1:])) * self.dtype.itemsize
         with open(self.path, "xb") as f:                 # (x: a file that exists is never overwritten)
             np.lib.format.write_array_header_1_0(f, {"descr": np.lib.format.dtype_to_descr(self.dtype),
                                                      "fortran_order": False, "shape": self.shape})
             self.offset = f.tell()
             f.truncate(self.offset + int(np.prod(self.shape)) * self.dtype.itemsize)
         self.file = open(self.path, "r+b")
-        self.buf = np.empty((min(block_lines, self.shape[0]),) + self.shape[1:], dtype=self.dtype)
-        self.row_bytes = int(np.prod(self.shape[1:])) * self.dtype.itemsize
 
     def emit(self, k0: int, nb: int):
         self.file.seek(self.offset + k0 * self.row_bytes)
@@ -657,7 +660,9 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
             raise ValueError(f"ground: shape {ground_grid.shape} differs from the DSM's {dsm.heights.shape}")
     out_dir = None
     if out is not None:
-        out_dir = Path(out)
+        # absolute now: the result maps the files at the end, and a failed run removes the folder,
+        # both after a sensor's rays() may have changed the working directory (a review)
+        out_dir = Path(out).absolute()
         if out_dir.exists():
             raise FileExistsError(f"out={out_dir}: exists; choose a new directory (nothing is overwritten)")
         out_dir.mkdir(parents=True)
@@ -696,23 +701,39 @@ def _simulate(dsm, ortho, sensor, method, walls, shading, sun_arr, ambient, fill
     specs += [("surface", (nl, npx), np.int8, -1), ("ortho_value", (nl, npx), bool, False),
               ("status", (nl, npx), np.int8, -1), ("p", (nl, npx, 3), np.float64, np.nan)]
     files = {}
-    if out_dir is None:
-        arrays = {name: _alloc(shape, dtype, fv) for name, shape, dtype, fv in specs}
-    else:
-        try:
+    try:
+        if out_dir is None:
+            arrays = {name: _alloc(shape, dtype, fv) for name, shape, dtype, fv in specs}
+        else:
             for name, shape, dtype, _ in specs:
                 files[name] = _BlockFile(out_dir, name, shape, dtype, block_lines)
-        except BaseException:
-            for f in files.values():
-                f.close()
-            raise
-        arrays = {name: f.buf for name, f in files.items()}
-    try:
-        return _simulate_blocks(dsm, ortho, sensor, method, walls, shading, sun_arr, ambient, fill, occlusion,
-                                ground_grid, wall_slope, roof_min, threads, block_lines, progress, arrays, files)
-    finally:
+            arrays = {name: f.buf for name, f in files.items()}
+        sim = _simulate_blocks(dsm, ortho, sensor, method, walls, shading, sun_arr, ambient, fill, occlusion,
+                               ground_grid, wall_slope, roof_min, threads, block_lines, progress, arrays, files)
+    except BaseException:
+        # every file closed, and the error that stopped the run is the one raised: a close that
+        # fails here (its flush on a full disk) must neither hide it nor leave the other files
+        # open (a review)
         for f in files.values():
+            try:
+                f.close()
+            except OSError:
+                pass
+        raise
+    _close_all(files.values())
+    return sim
+
+
+def _close_all(files) -> None:
+    """Close every file, then raise the first error a close raised (if any)."""
+    first = None
+    for f in files:
+        try:
             f.close()
+        except OSError as exc:
+            first = first or exc
+    if first is not None:
+        raise first
 
 
 def _simulate_blocks(dsm, ortho, sensor, method, walls, shading, sun_arr, ambient, fill, occlusion, ground_grid,
