@@ -6,6 +6,7 @@ written independently from the contract."""
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -385,6 +386,33 @@ def test_shading_longitude_from_the_hit_point_near_the_polar_axis():
     np.testing.assert_allclose(li, np.degrees(np.arctan(20.0 / (m_h * np.radians(dl)))), atol=1e-4)
     assert np.ptp(li[:4]) < 1e-10, li                 # within 1e-160 m of the axis: one point to rounding
     assert abs(li[4] - li[0]) < 1e-7, li              # 1 mm off it: the dome's slope 1 mm away
+
+
+def test_occlusion_of_an_image_larger_than_its_dsm(box):
+    """The occlusion pass when every border pixel of the image misses the DSM
+    (a newcomer's walk-through, 2026-12-04: a 700^2 orbit image of a 600 m DSM
+    marked 332 of ~3,200 hidden pixels). The box scene's DSM cropped to rows
+    30-90 and columns 20-100, seen by the box pushbroom over the whole 120^2
+    scene: the strip hidden behind the 20 m box at 9 deg is the same columns
+    37-39 on its 20 rows as when the image lies inside the DSM (the box view
+    test: h tan(theta) = 3.17 m), and the footprint is every ortho pixel on the
+    cropped DSM (the image covers all of it)."""
+    dsm_full, ortho, scene, _ = box
+    s0, l0 = oblique_pushbroom(scene, zenith=9.0, azimuth=90.0, margin=0)
+    sensor = pi.Pushbroom(s0, l0)
+    h = scene["heights"][30:91, 20:101]
+    dsm = pi.GeodeticDSM.from_array(h, scene["lat_first"] + 30 * scene["dlat"], scene["lon_first"] + 20 * scene["dlon"],
+                                    scene["dlat"], scene["dlon"], interpolation="nearest")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sim = pi.simulate_image(dsm, ortho, sensor, threads=1, ground=np.zeros_like(h))
+    assert not (sim.valid[0].any() or sim.valid[-1].any() or sim.valid[:, 0].any() or sim.valid[:, -1].any())
+    hidden_rows, hidden_cols = np.nonzero(sim.occlusion)
+    assert sorted(set(hidden_rows.tolist())) == list(range(50, 70)), hidden_rows
+    assert sorted(set(hidden_cols.tolist())) == [37, 38, 39] and len(hidden_rows) == 60
+    on_dsm = np.zeros(ortho.shape, dtype=bool)
+    on_dsm[30:91, 20:101] = True
+    assert np.array_equal(sim.footprint, on_dsm), int(sim.footprint.sum())
 
 
 def test_box_view_from_east_roof_wall_and_hidden_ground(box):

@@ -330,7 +330,12 @@ def test_footprint_holds_every_hit_when_the_border_misses_the_dsm():
     """The simulation fuzzing (2026-12-03): an image wider than its DSM (every border pixel misses
     it) had hits on 9 ortho pixels and a footprint of 0 (the mask was built only inside the box of
     the border's hits, and not at all with fewer than 3). Expectation, from the hits themselves:
-    every ortho pixel a hit lands on (nearest centre) is in the footprint; a flat DSM hides none."""
+    every ortho pixel a hit lands on (nearest centre) is in the footprint; a flat DSM hides none.
+    The image (9 x 9 pixels of ~3.5 m at nadir from 100 m, ~31 m across) covers the whole DSM
+    (11 x 11 cells of ~1.1 x 0.8 m), so since 2026-12-04, when the border's rays that miss the DSM
+    also bound the footprint (simulation note 5), every ortho pixel on the DSM is in it (it was the
+    9 pixels hit, which the walk-through of that day showed to be wrong: test_simulate.py,
+    test_occlusion_of_an_image_larger_than_its_dsm)."""
     lat0, lon0, d = 45.0, 7.0, 1e-5
     dsm = pi.GeodeticDSM.from_array(np.zeros((11, 11)), lat0, lon0, d, d)
     ortho = pi.OrthoImage.from_array(np.full((11, 11), 100.0), lat0, lon0, d, d)
@@ -344,4 +349,4 @@ def test_footprint_holds_every_hit_when_the_border_misses_the_dsm():
     seen = set(zip(np.rint(u).astype(int).tolist(), np.rint(v).astype(int).tolist()))
     assert len(seen) == 9
     assert all(bool(sim.footprint[i, j]) for i, j in seen)
-    assert int(sim.footprint.sum()) == 9 and not sim.occlusion.any()
+    assert sim.footprint.all() and not sim.occlusion.any()
