@@ -41,8 +41,8 @@ def _run(args, capsys):
     (["--roll", "0"], "--roll: need --orbit"),                       # a zero is given too
     (["--lines", "30", "--pixels", "20"], "--lines, --pixels: need --orbit"),
     (["--target", "36.6,-84.2"], "--target: need --orbit"),
-    (["--orbit", "--target", "36.6,-84.2", "--oblique", "30,0"], "--orbit: --oblique belong to --oblique runs"),
-    (["--orbit", "--target", "36.6,-84.2", "--step", "2"], "--orbit: --step belong to --oblique runs"),
+    (["--orbit", "--target", "36.6,-84.2", "--oblique", "30,0"], "--orbit: --oblique belongs to --oblique runs"),
+    (["--orbit", "--target", "36.6,-84.2", "--step", "2"], "--orbit: --step belongs to --oblique runs"),
 ])
 def test_options_the_sensor_would_ignore_are_refused(tmp_path, capsys, extra, words):
     """--roll without --orbit was ignored (the image came from --oblique's default sensor), and so

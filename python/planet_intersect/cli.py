@@ -765,7 +765,8 @@ def _check_sensor_options(args) -> None:
     elif args.orbit:
         extra = _given(args, _OBLIQUE_ONLY)
         if extra:
-            raise CLIError(f"--orbit: {', '.join(extra)} belong to --oblique runs and would be ignored")
+            raise CLIError(f"--orbit: {', '.join(extra)} {'belongs' if len(extra) == 1 else 'belong'} to --oblique "
+                           "runs and would be ignored")
     else:
         extra = _given(args, _ORBIT_ONLY)
         if extra:
