@@ -490,11 +490,6 @@ def _check_sun(sun):
 BLOCK_PIXELS = 131_072
 
 
-def _alloc(shape, dtype, fill):
-    """An output array held in memory, filled with ``fill``."""
-    return np.full(shape, fill, dtype=dtype)
-
-
 class _BlockFile:
     """One output of ``simulate_image(out=DIR)``: a new ``DIR/NAME.npy`` of the whole image's
     shape, written a block of lines at a time from one reused in-memory block buffer
@@ -682,7 +677,7 @@ def _rows(arr, blk: slice, shape):
     """A view of the rows ``blk`` of a C-ordered output array, reshaped (the kernel writes into
     it in place: a reshape that had to copy would lose the results, so it is refused)."""
     block = arr[blk]
-    if not block.flags.c_contiguous:                       # (_alloc makes them C-ordered)
+    if not block.flags.c_contiguous:                       # (np.full and the block buffers are C-ordered)
         raise RuntimeError("simulate_image: an output block is not contiguous (internal error)")
     return block.reshape(shape)
 
@@ -703,7 +698,7 @@ def _simulate(dsm, ortho, sensor, method, walls, shading, sun_arr, ambient, fill
     files = {}
     try:
         if out_dir is None:
-            arrays = {name: _alloc(shape, dtype, fv) for name, shape, dtype, fv in specs}
+            arrays = {name: np.full(shape, fv, dtype=dtype) for name, shape, dtype, fv in specs}
         else:
             for name, shape, dtype, _ in specs:
                 files[name] = _BlockFile(out_dir, name, shape, dtype, block_lines)
@@ -714,25 +709,21 @@ def _simulate(dsm, ortho, sensor, method, walls, shading, sun_arr, ambient, fill
         # every file closed, and the error that stopped the run is the one raised: a close that
         # fails here (its flush on a full disk) must neither hide it nor leave the other files
         # open (a review)
-        for f in files.values():
-            try:
-                f.close()
-            except OSError:
-                pass
+        _close_all(files.values(), raise_first=False)
         raise
     _close_all(files.values())
     return sim
 
 
-def _close_all(files) -> None:
-    """Close every file, then raise the first error a close raised (if any)."""
+def _close_all(files, raise_first: bool = True) -> None:
+    """Close every file; then raise the first error a close raised, if any and if asked."""
     first = None
     for f in files:
         try:
             f.close()
         except OSError as exc:
             first = first or exc
-    if first is not None:
+    if first is not None and raise_first:
         raise first
 
 
