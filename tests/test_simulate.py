@@ -88,6 +88,14 @@ def test_ortho_read_geotiff_and_npz(tmp_path):
 
 
 # ------------------------------------------------------------- the simulation
+def _widened_pushbroom(scene, zenith, factor):
+    """The scene's oblique pushbroom from the East with each line's directions spread ``factor``
+    times about its centre pixel (factor 1.5: aimed 25 % beyond both sides of the scene)."""
+    s0, l0 = oblique_pushbroom(scene, zenith=zenith, azimuth=90.0, margin=0)
+    lc = l0[:, l0.shape[1] // 2][:, None, :]
+    return pi.Pushbroom(s0, lc + factor * (l0 - lc))
+
+
 @pytest.fixture(scope="module")
 def box():
     dsm, ortho, scene = box_scene()
@@ -172,9 +180,7 @@ def test_backplanes_equal_the_trace_across_the_antimeridian():
     dsm = pi.GeodeticDSM.from_array(h, lat_first, lon_first, -dlat, dlon, interpolation="nearest")
     ortho = pi.OrthoImage.from_array(np.arange(n * n, dtype=float).reshape(n, n), lat_first, lon_first, -dlat, dlon)
     scene = dict(heights=h, lat_first=lat_first, lon_first=lon_first, dlat=-dlat, dlon=dlon)
-    s0, l0 = oblique_pushbroom(scene, zenith=20.0, azimuth=90.0, margin=0)
-    lc = l0[:, l0.shape[1] // 2][:, None, :]
-    sensor = pi.Pushbroom(s0, lc + 1.3 * (l0 - lc))
+    sensor = _widened_pushbroom(scene, 20.0, 1.3)
     sim = pi.simulate_image(dsm, ortho, sensor, threads=2, occlusion=False, block_lines=9)
     s, l = sensor.rays()
     res = pi.intersect(dsm, s, l, method="exact", threads=1)
@@ -203,9 +209,7 @@ def test_blocks_threads_and_memmap_give_identical_results(box, tmp_path):
     assert isinstance(b.lat, np.memmap) and (tmp_path / "maps" / "lat.npy").is_file()
     # the memory-mapped files are not pre-filled: pixels whose rays leave the DSM must still get the
     # fill, NaN and -1 entries (a sensor wider than the scene)
-    s0, l0 = oblique_pushbroom(scene, zenith=9.0, azimuth=90.0, margin=0)
-    lc = l0[:, l0.shape[1] // 2][:, None, :]
-    wide = pi.Pushbroom(s0, lc + 1.5 * (l0 - lc))          # each line aimed 25 % beyond both sides
+    wide = _widened_pushbroom(scene, 9.0, 1.5)              # each line aimed 25 % beyond both sides
     c = pi.simulate_image(dsm, ortho, wide, threads=1, block_lines=1000, occlusion=False)
     d = pi.simulate_image(dsm, ortho, wide, threads=1, block_lines=7, occlusion=False, out=tmp_path / "wide")
     assert (~c.valid).sum() > 0.2 * c.valid.size
@@ -223,9 +227,7 @@ def test_out_files_are_written_block_by_block_and_complete(box, tmp_path):
     block shorter than the others and a block longer than the image; the result
     maps them writable; a failed later block leaves no folder."""
     dsm, ortho, scene, _ = box
-    s0, l0 = oblique_pushbroom(scene, zenith=9.0, azimuth=90.0, margin=0)
-    lc = l0[:, l0.shape[1] // 2][:, None, :]
-    sensor = pi.Pushbroom(s0, lc + 1.5 * (l0 - lc))          # lines 25 % wider than the scene: misses too
+    sensor = _widened_pushbroom(scene, 9.0, 1.5)            # lines 25 % wider than the scene: misses too
     vals = ortho.values
     rgb = pi.OrthoImage.from_array(np.stack([vals, 0.5 * vals, 255.0 - vals], axis=-1), scene["lat_first"],
                                    scene["lon_first"], scene["dlat"], scene["dlon"])
