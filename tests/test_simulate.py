@@ -87,6 +87,33 @@ def test_ortho_read_geotiff_and_npz(tmp_path):
         pi.OrthoImage.read(tmp_path / "bad.tif")
 
 
+# ------------------------------------------------------------- the sensor of the benchmarks
+def test_oblique_scan_targets_equal_a_conversion_per_pixel():
+    """ObliqueScan.rays converts a row's latitude and a column's longitude once each and
+    multiplies (geodetic_to_ecr's x = ((N + h) cos lat) cos lon, a product of rounded factors);
+    every ray equals, to the bit, the one aimed at a per-pixel geodetic_to_ecef of the pixel's
+    (lat, lon) from the line's focal point: on the Earth and on a flattened body, over the
+    antimeridian, in blocks that start mid-image, with a non-unit step."""
+    from planet_intersect.geodetic import geodetic_to_ecef
+    from planet_intersect.synthetic_dsm import ObliqueScan
+
+    rng = np.random.default_rng(11)
+    for a, f, lon_first, lat_first in ((6378137.0, 1 / 298.257223563, 179.99, 47.3),
+                                       (3396190.0, 1 / 169.894, -40.0, -71.2)):
+        h = rng.uniform(0.0, 40.0, (30, 37))
+        scene = dict(heights=h, lat_first=lat_first, lon_first=lon_first, dlat=-1e-5, dlon=1.3e-5, a=a, f=f)
+        scan = ObliqueScan(scene, zenith=17.0, azimuth=250.0, margin=2, step=1.5)
+        nl, npx = scan.shape
+        for k0, k1 in ((0, nl), (3, 7), (nl - 1, nl)):
+            s, l = scan.rays(k0, k1)
+            lat = np.repeat(scan.lat_first + scan.rows[k0:k1] * scan.dlat, npx)
+            lon = np.tile(scan.lon_first + scan.cols * scan.dlon, k1 - k0)
+            tgt = geodetic_to_ecef(lat, lon, scan.href, a, f)
+            assert s.shape == l.shape == ((k1 - k0) * npx, 3)
+            assert np.array_equal(s, np.repeat(s[::npx], npx, axis=0))      # one focal point a line
+            assert np.array_equal(l, tgt - s)
+
+
 # ------------------------------------------------------------- the simulation
 def _widened_pushbroom(scene, zenith, factor):
     """The scene's oblique pushbroom from the East with each line's directions spread ``factor``

@@ -321,8 +321,15 @@ class ObliqueScan(Sensor):
         lat = self.lat_first + rows * self.dlat
         npx = len(self.cols)
         lons = self.lon_first + self.cols * self.dlon
-        tgt = geodetic_to_ecef(np.repeat(lat, npx), np.tile(lons, len(rows)), self.href, self.a, self.f)
-        c = geodetic_to_ecef(lat, np.full(len(rows), self.lon_c), self.href, self.a, self.f).reshape(-1, 3)
+        # the targets' ECR points on the grid of rows x columns, from a conversion per row and one per
+        # column instead of one per pixel: geodetic_to_ecr's x = ((N + h) cos lat) cos lon is that
+        # product of IEEE-rounded factors, so the row's (N + h) cos lat (its x at lon = 0, times
+        # cos 0 = 1) and z, and the column's cos lon and sin lon (its x and y on the unit sphere,
+        # N = 1, h = 0) give every pixel's point identical to the bit (tests/test_simulate.py)
+        rx = geodetic_to_ecef(lat, np.zeros(len(rows)), self.href, self.a, self.f).reshape(-1, 3)
+        cs = geodetic_to_ecef(np.zeros(npx), lons, 0.0, 1.0, 0.0).reshape(-1, 3)
+        nr = len(rows)
+        c = geodetic_to_ecef(lat, np.full(nr, self.lon_c), self.href, self.a, self.f).reshape(-1, 3)
         la, lo = np.radians(lat), np.radians(self.lon_c)
         up = np.stack([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)], axis=1)
         e = np.broadcast_to(np.array([-np.sin(lo), np.cos(lo), 0.0]), up.shape)
@@ -330,8 +337,12 @@ class ObliqueScan(Sensor):
         z, az = np.radians(self.zenith), np.radians(self.azimuth)
         back = np.cos(z) * up + np.sin(z) * (np.cos(az) * nvec + np.sin(az) * e)
         s = c + (self.altitude / np.cos(z)) * back
-        s = np.repeat(s, npx, axis=0)
-        return s, tgt.reshape(-1, 3) - s
+        l = np.empty((nr, npx, 3))
+        np.multiply(rx[:, None, 0], cs[None, :, 0], out=l[:, :, 0])
+        np.multiply(rx[:, None, 0], cs[None, :, 1], out=l[:, :, 1])
+        l[:, :, 2] = rx[:, None, 2]
+        l -= s[:, None, :]
+        return np.repeat(s, npx, axis=0), l.reshape(-1, 3)
 
     def __repr__(self) -> str:
         return (f"ObliqueScan({self.nlines} lines x {self.npixels} pixels, zenith {self.zenith} deg "
