@@ -797,7 +797,7 @@ def _trace_raw(dsm: GeodeticDSM, s, l, method: str, threads, fan: int = 0):
     s = np.ascontiguousarray(np.broadcast_to(s, (n, 3)))
     l = np.ascontiguousarray(np.broadcast_to(l, (n, 3)))
     pyr, meta = dsm.pyramid()
-    s_core, r0 = _reanchor(dsm, s, l)
+    s_core, r0 = _reanchor(dsm, s, l, np.broadcast_to(n2s, (n,)))
     p, q, scal, status, nsteps, stat = _core.core_dsm_trace(
         *dsm._core_grid()[:7], dsm._core_grid()[7], dsm.hmax, dsm.hmin, pyr, meta.T, s_core.T, l.T,
         _DSM_METHODS[method], int(threads), int(fan))
@@ -820,17 +820,20 @@ def _trace_raw(dsm: GeodeticDSM, s, l, method: str, threads, fan: int = 0):
     return n, s, l, p, q, scal, status, nsteps
 
 
-def _reanchor(dsm: GeodeticDSM, s: np.ndarray, l: np.ndarray):
+def _reanchor(dsm: GeodeticDSM, s: np.ndarray, l: np.ndarray, n2s: np.ndarray | None = None):
     """(s for the core, r0 or None): focal points beyond 16 R from the centre (R = a +
     max(H_max, 0), a sphere holding every point at or below H_max) moved along their
     (unit) rays to where they enter the sphere of radius 2 R; r0 is added back to the
     distances. As the planetary core re-anchors a far spacecraft: the core's searches
     work in lengths near a; from 1e12 m rays aimed into a grid came back MISS or
     STEP_LIMIT and the following hit 20 km underground (a review). Rays that miss the
-    2 R sphere are left as they are (the core finds them MISS)."""
+    2 R sphere are left as they are (the core finds them MISS). ``n2s``: the rows'
+    squared lengths if already known (_as_vectors_n2)."""
     big = 16.0 * (dsm.a + max(dsm.hmax, 0.0))
-    with np.errstate(over="ignore", invalid="ignore"):
-        far = np.einsum("ij,ij->i", s, s) > big * big
+    if n2s is None:
+        with np.errstate(over="ignore", invalid="ignore"):
+            n2s = np.einsum("ij,ij->i", s, s)
+    far = n2s > big * big
     if not far.any():
         return s, None
     rb = 2.0 * (dsm.a + max(dsm.hmax, 0.0))
