@@ -657,7 +657,7 @@ def test_runs_frame_camera_one_focal_point(city):
     s, l = cam.rays()
     s = np.ascontiguousarray(np.broadcast_to(s, l.shape))
     frac, _, _ = check(dsm, s, l, RUNS)
-    assert frac > 0.2, frac                    # chunks of 128 rays span 5 rows: not one plane
+    assert frac > 0.2, frac                    # chunks of 512 rays span 21 rows: not one plane (0.36 certified)
     res = pi.intersect(dsm, s[:1], l, method="exact", threads=1)     # one s for all: broadcast, one run
     st, r, _ = trace(dsm, s, l, RUNS)
     np.testing.assert_array_equal(np.asarray(res.status), st)
