@@ -434,3 +434,57 @@ def test_ulp_is_spacing():
     assert (s[top] == 2.0 ** 971).all() and top.sum() >= 1   # Fortran's spacing: 2^(1023 - 52)
     assert s[x == 300.0][0] == 2.0 ** -44                 # 300 in [2^8, 2^9): 2^(8 - 52)
     assert np.isnan(_core.core_ulp(np.array([np.nan, np.inf]))).all()
+
+
+def test_trace_outputs_are_written_whole_without_a_fill():
+    """core_dsm_trace's outputs reach the core unfilled (f2py intent(out, cache); before, f2py
+    zeroed them and the core filled them with NaN, two passes over 136 bytes a ray): the core
+    writes every element. Each call is preceded by freed arrays of the outputs' sizes holding a
+    sentinel, which malloc hands to f2py again, so an element left unwritten keeps the sentinel.
+    Every method (following, exact, iterative, exact_ray alone, the fast path alone, exact with
+    fans) on hits, misses, rays that leave the grid, a focal point inside the surface and zero
+    or NaN directions. An unknown method returns stat != 0 with every output filled (NaN,
+    BAD_DIRECTION, 0 steps)."""
+    g = sd.building_scene(n=48, seed=3)
+    g.pop("roof_id")
+    dsm = pi.GeodeticDSM.from_array(g["heights"], g["lat_first"], g["lon_first"], g["dlat"], g["dlon"],
+                                    interpolation="nearest")
+    sen = sd.ObliqueScan(g, zenith=35.0, azimuth=90.0, margin=0)
+    s, l = sen.rays(20, 21)                                   # one line: hits, and rays leaving the grid
+    s2, l2 = sd.pushbroom_rays(g, 16, seed=2)
+    s = np.vstack([s, s2, s[:1], s[:1], s[:1]])
+    l = np.vstack([l, l2, -l[:1], np.zeros((1, 3)), np.full((1, 3), np.nan)])   # miss, zero, NaN
+    lat_c = g["lat_first"] + 24 * g["dlat"]
+    lon_c = g["lon_first"] + 24 * g["dlon"]
+    s = np.vstack([s, geodetic_to_ecef(lat_c, lon_c, -50.0)[None, :]])    # under the surface
+    l = np.vstack([l, l2[:1]])
+    s, l = np.ascontiguousarray(s), np.ascontiguousarray(l)
+    n = len(s)
+    pyr, meta = dsm.pyramid()
+    grid = dsm._core_grid()
+    sentinel = np.float64(-1.2345678901234567e-301)
+    sbits = sentinel.view(np.int64)
+
+    def call(method, fan=0):
+        junk = [np.full(shape, sentinel, order="F") for shape in ((10, n), (3, n), (3, n))]
+        junk += [np.full(n, -123456789, dtype=np.int32) for _ in range(2)]
+        del junk                                               # all freed together: reused by f2py
+        return _core.core_dsm_trace(*grid[:7], grid[7], dsm.hmax, dsm.hmin, pyr, meta.T, s.T, l.T, method, 1,
+                                    fan)
+
+    seen = set()
+    for method, fan in ((0, 0), (1, 0), (2, 0), (3, 0), (4, 0), (1, sen.npixels)):
+        for _ in range(3):
+            p, q, scal, status, nsteps, stat = call(method, fan)
+            assert stat == 0
+            for name, arr in (("p", p), ("q", q), ("scal", scal)):
+                left = np.flatnonzero(arr.view(np.int64) == sbits)
+                assert left.size == 0, f"method {method}: {name} elements {left[:5]} never written"
+            assert not np.any(status == -123456789) and not np.any(nsteps == -123456789)
+            seen.update(int(v) for v in status)
+    assert {HIT, LEFT_DSM, MISS, int(pi.DSMStatus.INSIDE), int(pi.DSMStatus.BAD_DIRECTION)} <= seen, seen
+    p, q, scal, status, nsteps, stat = _core.core_dsm_trace(*grid[:7], grid[7], dsm.hmax, dsm.hmin, pyr, meta.T,
+                                                           s.T, l.T, 9, 1)
+    assert stat != 0
+    assert np.isnan(p).all() and np.isnan(q).all() and np.isnan(scal).all()
+    assert np.all(status == int(pi.DSMStatus.BAD_DIRECTION)) and np.all(nsteps == 0)
