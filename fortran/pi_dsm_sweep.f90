@@ -75,8 +75,8 @@ module pi_dsm_sweep
   !> rays per chunk: each chunk has its own plane and corridor (short chunks
   !> keep the corridor's curvature margin and its off-plane widening small;
   !> long ones share the frame, four corner conversions and the corridor's set-up
-  !> among more rays). 512 since 2026-12-04 (was 128): 1.06-1.08x the simulation
-  !> benchmark's rays, 1.03-1.15x the geodetic benchmark's scans, the certified
+  !> among more rays). 512 since 2026-12-04 (was 128): 1.06-1.09x the simulation
+  !> benchmark's rays, 1.03-1.20x the geodetic benchmark's scans, the certified
   !> prefixes within 2 cm of 128's (mean gap to the hit 2.93 m against 2.91 m);
   !> a 512-pixel chunk of a row of 1 m pixels departs from its chord by ~6 mm
   !> (docs/simulation-notes.md note 15)
