@@ -326,9 +326,9 @@ class ObliqueScan(Sensor):
         # product of IEEE-rounded factors, so the row's (N + h) cos lat (its x at lon = 0, times
         # cos 0 = 1) and z, and the column's cos lon and sin lon (its x and y on the unit sphere,
         # N = 1, h = 0) give every pixel's point identical to the bit (tests/test_simulate.py)
-        rx = geodetic_to_ecef(lat, np.zeros(len(rows)), self.href, self.a, self.f).reshape(-1, 3)
-        cs = geodetic_to_ecef(np.zeros(npx), lons, 0.0, 1.0, 0.0).reshape(-1, 3)
         nr = len(rows)
+        rx = geodetic_to_ecef(lat, np.zeros(nr), self.href, self.a, self.f).reshape(-1, 3)
+        cs = geodetic_to_ecef(np.zeros(npx), lons, 0.0, 1.0, 0.0).reshape(-1, 3)
         c = geodetic_to_ecef(lat, np.full(nr, self.lon_c), self.href, self.a, self.f).reshape(-1, 3)
         la, lo = np.radians(lat), np.radians(self.lon_c)
         up = np.stack([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)], axis=1)
