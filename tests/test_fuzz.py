@@ -191,3 +191,33 @@ def test_bulk_catches_a_crash_and_names_the_case():
     # the first segfaulting case of that batch, none before it
     assert all(gen_case(seed, b, k, mix).get("action") != "segfault" for k in range(i))
     assert run.restarts >= len(crashes) and run.api_calls >= 300
+
+
+def test_sim_family_allows_the_node_line_step_limit_only_on_the_node_line():
+    """The simulation family's allowance for the exact mode's documented node-line STEP_LIMIT
+    (docs/shin-park-notes.md; fuzzing/sim.py, _on_node_line_by_nodata) takes the case it was
+    made for (seed 7500: a nadir sensor 10 m from Mars's south pole exactly on a bilinear column's
+    centre meridian, no-data nodes beside it) and nothing near it: the same sensor 1e-9 degrees
+    off the meridian, the same DSM without no-data nodes, or "nearest" interpolation. The statuses
+    are given, not traced, so the test is of the allowance alone."""
+    import numpy as np
+
+    import planet_intersect as pi
+    from fuzzing import sim as fs
+
+    dsm_spec = {'shape': (26, 13), 'a': 3396190.0, 'f': 0.005886023049666262, 'interpolation': 'bilinear',
+                'lat_first': -89.99915646875709, 'lon_first': -17.15938910843238, 'dlat': -3.374120971623043e-05,
+                'dlon': 0.016870604858115215, 'kind': 'holes', 'scale': 60.0, 'base': 120.0, 'seed': 1066221050,
+                'nodata': -9999.0}
+    sensor_spec = {'kind': 'nadir', 'shape': (5, 1), 'look': 'steep', 'a': 3396190.0, 'f': 0.005886023049666262,
+                   'lat': -89.99982988112156, 'lon': -17.058165479283687, 'height': 204.02936802190655,
+                   'ifov': 4.493139792066052, 'rotation': 0.0}
+    dsm = fs._dsm(dsm_spec)
+    st = np.array([[9], [14], [9], [9], [9]])
+    assert fs._on_node_line_by_nodata(fs.build_sensor(sensor_spec), st, dsm)
+    assert not fs._on_node_line_by_nodata(fs.build_sensor(dict(sensor_spec, lon=sensor_spec["lon"] + 1e-9)), st, dsm)
+    h = np.asarray(dsm.heights, dtype=np.float64)
+    filled = pi.GeodeticDSM.from_array(np.where(np.isfinite(h), h, 100.0), dsm.lat_first, dsm.lon_first, dsm.dlat,
+                                       dsm.dlon, a=dsm.a, f=dsm.f, interpolation="bilinear")
+    assert not fs._on_node_line_by_nodata(fs.build_sensor(sensor_spec), st, filled)
+    assert not fs._on_node_line_by_nodata(fs.build_sensor(sensor_spec), st, dsm.with_interpolation("nearest"))

@@ -1073,7 +1073,7 @@ def _near_axis_only(sensor, st, dsm) -> bool:
 
 def _on_node_line_by_nodata(sensor, st, dsm) -> bool:
     """True when every STEP_LIMIT pixel's ray lies in the meridian half-plane of one of a bilinear
-    DSM's node columns (to 1e-12 relative) with a no-data node in that column or a neighbour: the
+    DSM's node columns (to rounding: 1e-9 cells, 1e-14 relative) with a no-data node in that column or a neighbour: the
     exact mode's documented flicker (docs/shin-park-notes.md, "Still STEP_LIMIT": the points of a
     ray on a node line round to either side of it, so the lookup flips between a data cell and a
     no-data cell and every box of the search holds the no-data one). Seen by this family on
@@ -1095,12 +1095,12 @@ def _on_node_line_by_nodata(sensor, st, dsm) -> bool:
         lon = np.degrees(np.arctan2(sk[1], sk[0]))
         u = ((lon - dsm.lon_first) / dsm.dlon) % (360.0 / abs(dsm.dlon))
         j = int(round(u))
-        if not (abs(u - j) <= 1e-6 and 0 <= j < dsm.ncols):
+        if not (abs(u - j) <= 1e-9 and 0 <= j < dsm.ncols):
             return False
         lam = np.radians(dsm.lon_first + j * dsm.dlon)
         east = np.array([-np.sin(lam), np.cos(lam), 0.0])
         lu = lk / np.linalg.norm(lk)
-        if not (abs(east @ sk) <= 1e-12 * np.linalg.norm(sk) and abs(east @ lu) <= 1e-12):
+        if not (abs(east @ sk) <= 1e-14 * np.linalg.norm(sk) and abs(east @ lu) <= 1e-14):
             return False
         if not np.isnan(h[:, max(j - 1, 0):j + 2]).any():
             return False
