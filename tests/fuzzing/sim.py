@@ -1050,14 +1050,19 @@ def _spoiled_call(case, dsm, ortho, sensor, kw, tmp):
 _COUNTER = [0]
 
 
+def _step_limit_rays(sensor, st):
+    """(s, l) of the pixels whose status is STEP_LIMIT (14), as float64 rows."""
+    s, l = sensor.rays()
+    k = np.flatnonzero(np.asarray(st).ravel() == 14)
+    return np.asarray(s, dtype=np.float64)[k], np.asarray(l, dtype=np.float64)[k]
+
+
 def _near_axis_only(sensor, st, dsm) -> bool:
     """True when every STEP_LIMIT pixel's ray passes within 1e-6 a of the polar axis: the exact
     mode's documented gap (docs/shin-park-notes.md, "The chord rule near the poles": nadir rays
     between polar_box's 1e-9 a and the chord rule's 1e-6 a of the axis may end STEP_LIMIT). Seen
     by this family on 2026-12-03: a nadir ray 1.55 m from Mars's pole down a column boundary."""
-    s, l = sensor.rays()
-    k = np.flatnonzero(np.asarray(st).ravel() == 14)
-    s, l = np.asarray(s, dtype=np.float64)[k], np.asarray(l, dtype=np.float64)[k]
+    s, l = _step_limit_rays(sensor, st)
     lu = l / np.linalg.norm(l, axis=1, keepdims=True)
     # the closest approach of s + t lu (0 <= t <= |s| + a) to the axis, in closed form: it was the
     # least of 2,001 samples over that length (one per ~6 km on Earth), which missed a ray passing
@@ -1082,9 +1087,7 @@ def _on_node_line_by_nodata(sensor, st, dsm) -> bool:
     gives the same STEP_LIMIT."""
     if dsm.interpolation != "bilinear" or dsm.ncols * abs(dsm.dlon) >= 359.0:
         return False
-    s, l = sensor.rays()
-    k = np.flatnonzero(np.asarray(st).ravel() == 14)
-    s, l = np.asarray(s, dtype=np.float64)[k], np.asarray(l, dtype=np.float64)[k]
+    s, l = _step_limit_rays(sensor, st)
     h = np.asarray(dsm.heights, dtype=np.float64)
     if dsm.nodata is not None:
         h = np.where(h == dsm.nodata, np.nan, h)
