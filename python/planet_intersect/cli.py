@@ -5,6 +5,7 @@
                          [--method stepping|exact] [--threads N] [--io records|mmap]
     planet-intersect run DSM.tif|DSM.npz RAYS [--method following|exact|iterative] [--interpolation ...]
     planet-intersect examples olympus|limb [--dem HDR | --mola IMG] [--out DIR]
+    planet-intersect examples buildings [--zenith Z] [--size N] [--stride K] [--out DIR]
     planet-intersect import-mola OUT (--radius IMG | --topography IMG --areoid IMG) [--overwrite]
     planet-intersect fetch-mola DEST [--product megr90n000cb|megr90n000eb]
     planet-intersect footprint (--states CSV | --kernels K... --times FILE) [--dem HDR | --mola IMG] [--zeta Z]
@@ -363,6 +364,11 @@ def _example_dem(args):
 
 def _examples(args) -> int:
     _require("matplotlib", "plot", f"examples {args.which} (its figure)")
+    if args.which == "buildings":
+        return _examples_buildings(args)
+    for name in ("zenith", "size", "stride"):
+        if getattr(args, name) is not None:
+            raise CLIError(f"--{name} is for 'examples buildings', not {args.which}")
     from . import examples
 
     dem, source = _example_dem(args)
@@ -388,6 +394,40 @@ def _examples_in(args, examples, dem, source, out) -> int:
         print(f"example 2 (Fig. 9) on {source}: {ex.nframes} frames x {ex.npix} pixels, {int((status == 0).sum())} hit "
               f"the surface, {mountain} of them miss the smooth spheroid but hit the mountain\n"
               f"  wrote {out}/limb_fig9.png, limb_pixels.csv")
+    return 0
+
+
+def _examples_buildings(args) -> int:
+    """Shin & Park's Figs. 1 and 2 on a section through the paper's buildings (dsm_examples)."""
+    from . import dsm_examples
+
+    for name in ("dem", "mola"):
+        if getattr(args, name):
+            raise CLIError(f"--{name} is for the Mars examples (olympus, limb); 'examples buildings' builds its own "
+                           f"scene")
+    zenith = 25.0 if args.zenith is None else args.zenith
+    size = 640 if args.size is None else args.size
+    stride = 2 if args.stride is None else args.stride
+    if not (math.isfinite(zenith) and 0.0 < zenith < 80.0):
+        raise CLIError(f"--zenith: degrees in (0, 80), got {zenith:g}")
+    if not 64 <= size <= 4096:
+        raise CLIError(f"--size: the scene's side in metres, 64 to 4096, got {size}")
+    if not 1 <= stride <= size:
+        raise CLIError(f"--stride: 1 to --size ({size}), got {stride}")
+    t0 = time.perf_counter()
+    ex = dsm_examples.buildings(size=size, zenith=zenith, stride=stride)
+    with _run_dir(Path(args.out)) as out:
+        dsm_examples.plot_buildings(ex, out / "buildings.png")
+        lines = [f"examples buildings: the paper's scene ({size} m, flat ground, 'nearest'), rays from the east at "
+                 f"{zenith:g} deg zenith, in {time.perf_counter() - t0:.1f} s",
+                 f"  section (row {ex.row}, {len(ex.x)} rays) and {ex.nscene:,} rays over the scene, each method "
+                 f"against the exact mode's first hit:"]
+        for m in ("following", "iterative"):
+            c = ex.counts[m]
+            parts = [f"{label.split(' (')[0]} {n:,}" for label, n in zip(dsm_examples.OUTCOMES, c) if n]
+            lines.append(f"    {m:9s} " + ", ".join(parts))
+        lines.append(f"  wrote {out}/buildings.png")
+        print("\n".join(lines))
     return 0
 
 
@@ -978,8 +1018,14 @@ def _parser() -> argparse.ArgumentParser:
                        help="rays that leave the DSM without a hit: status LEFT_DSM only (default), or also "
                             "the point on the bare ellipsoid")
     r.set_defaults(func=_run)
-    e = sub.add_parser("examples", help="the paper's Mars examples: olympus (Fig. 8) or limb (Fig. 9), on MOLA")
-    e.add_argument("which", choices=("olympus", "limb"))
+    e = sub.add_parser("examples", help="the papers' examples: olympus (Fig. 8) or limb (Fig. 9), on MOLA; "
+                                        "buildings (Shin & Park's Figs. 1-2, on a built-in scene)")
+    e.add_argument("which", choices=("olympus", "limb", "buildings"))
+    e.add_argument("--zenith", type=float, default=None,
+                   help="buildings: the rays' zenith angle in degrees, arriving from the east (default 25)")
+    e.add_argument("--size", type=int, default=None, help="buildings: the scene's side in metres (default 640)")
+    e.add_argument("--stride", type=int, default=None,
+                   help="buildings: a ray at every K-th row and column of the scene for the counts (default 2)")
     e.add_argument("--dem", help="a Mars DEM NAME.hdr in km (default: the MOLA grid in $PI_SHARED_DATA, or in "
                                  "../shared/data relative to the current folder)")
     e.add_argument("--mola", help="a MEGDR radius grid (megr*.img style) to use instead")
