@@ -7,6 +7,7 @@
     planet-intersect examples olympus|limb [--dem HDR | --mola IMG] [--out DIR]
     planet-intersect examples buildings [--zenith Z] [--size N] [--stride K] [--out DIR]
     planet-intersect import-mola OUT (--radius IMG | --topography IMG --areoid IMG) [--overwrite]
+    planet-intersect import-pds LABEL OUT [--heights-above KM] [--overwrite]
     planet-intersect fetch-mola DEST [--product megr90n000cb|megr90n000eb]
     planet-intersect footprint (--states CSV | --kernels K... --times FILE) [--dem HDR | --mola IMG] [--zeta Z]
     planet-intersect simulate [--dsm DSM --ortho ORTHO (--oblique Z,AZ | --orbit ... | --geometry NPZ)] [--out DIR]
@@ -439,6 +440,17 @@ def _import_mola(args) -> int:
     try:
         hdr = import_mola(args.out, radius=args.radius, topography=args.topography, areoid=args.areoid,
                           overwrite=args.overwrite)
+    except FileExistsError as exc:                 # (the library's advice names its Python argument)
+        raise CLIError(str(exc).replace("pass overwrite=True", "give --overwrite")) from None
+    print(f"wrote {hdr} and {hdr.with_suffix('.dem')}")
+    return 0
+
+
+def _import_pds(args) -> int:
+    from .pds import import_pds
+
+    try:
+        hdr = import_pds(args.label, args.out, heights_above=args.heights_above, overwrite=args.overwrite)
     except FileExistsError as exc:                 # (the library's advice names its Python argument)
         raise CLIError(str(exc).replace("pass overwrite=True", "give --overwrite")) from None
     print(f"wrote {hdr} and {hdr.with_suffix('.dem')}")
@@ -1039,6 +1051,14 @@ def _parser() -> argparse.ArgumentParser:
     m.add_argument("--areoid", help="areoid grid (value + 3,396,000 m) for --topography")
     m.add_argument("--overwrite", action="store_true", help="replace existing NAME.hdr/.dem")
     m.set_defaults(func=_import_mola)
+    m = sub.add_parser("import-pds", help="convert a global PDS3 simple-cylindrical radius grid (LOLA LDEM, "
+                                          "MEGDR, ...) with its label to a .hdr/.dem DEM (km)")
+    m.add_argument("label", help="the PDS3 label (.LBL, or an .IMG with its label attached)")
+    m.add_argument("out", help="output NAME (writes NAME.hdr and NAME.dem)")
+    m.add_argument("--heights-above", type=float, default=None, metavar="KM",
+                   help="for a grid of heights: the radius (km) of the sphere they are above")
+    m.add_argument("--overwrite", action="store_true", help="replace existing NAME.hdr/.dem")
+    m.set_defaults(func=_import_pds)
     f = sub.add_parser("fetch-mola", help="download a MEGDR radius grid from the PDS Geosciences Node and import it")
     f.add_argument("dest", help="folder for the download and the DEM")
     f.add_argument("--product", default="megr90n000cb", choices=("megr90n000cb", "megr90n000eb"),
