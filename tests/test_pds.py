@@ -349,3 +349,135 @@ END
     a, b = pds_dem(label), mola_dem(src)
     np.testing.assert_array_equal(np.asarray(a.radii), np.asarray(b.radii))
     assert a.re == 3396.0 and a.f == 0.0 and a.ppd == b.ppd == 4
+
+
+# ------------------------------------------------------------------ a review's reproducers (2026-12-05)
+def _with(tmp_path, text, name="case.LBL"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_review_faults_are_named_refusals(tmp_path):
+    """Each of these raised another exception type, hung or was read wrong before the review."""
+    r = _surface()
+    base = make_product(tmp_path, r).read_text()
+    extra = "  SCALING_FACTOR = 0.5\n"
+    cases = {
+        # a RecursionError: nesting was never counted
+        "X = " + "(" * 2000 + "1" + ")" * 2000 + "\n" + base: "nested too deep",
+        # an OverflowError: a 400-digit integer
+        base.replace("OFFSET = 1000000.0", "OFFSET = " + "9" * 400): "not a usable number",
+        # a ZeroDivisionError: ppd 0
+        base.replace("LINES = 180", "LINES = 90").replace("LINE_SAMPLES = 360", "LINE_SAMPLES = 180")
+            .replace("MAP_RESOLUTION = 1", "MAP_RESOLUTION = 0.5").replace("OFFSET = 89.5", "OFFSET = 44.5"):
+            "whole ppd",
+        # a comment left open swallowed SCALING_FACTOR (heights doubled, no error)
+        base.replace("  UNIT = METER\n", "  UNIT = METER   /* unit of the values\n"): "not closed on its line",
+        # east < west was taken as 360 degrees
+        base.replace("WESTERNMOST_LONGITUDE = 0 ", "WESTERNMOST_LONGITUDE = 360 ")
+            .replace("EASTERNMOST_LONGITUDE = 360 ", "EASTERNMOST_LONGITUDE = 0 "): "global grid",
+        # SAMPLE_PROJECTION_OFFSET against CENTER_LONGITUDE was not checked
+        base.replace("END_OBJECT = IMAGE_MAP_PROJECTION",
+                     "  CENTER_LONGITUDE = 180\n  SAMPLE_PROJECTION_OFFSET = 89.5\nEND_OBJECT = IMAGE_MAP_PROJECTION"):
+            "SAMPLE_PROJECTION_OFFSET",
+        # a keyword twice: the last one won
+        base.replace("  SCALING_FACTOR = 0.5\n", extra + "  SCALING_FACTOR = 0.25\n"): "given twice",
+        # END_OBJECT = FOO closed IMAGE
+        base.replace("END_OBJECT = IMAGE\n", "END_OBJECT = FOO\n"): "closes OBJECT = IMAGE",
+        # a non-integer ppd that fits the file ended in DEM.from_array's message without the file
+        base.replace("MAP_RESOLUTION = 1", "MAP_RESOLUTION = 1.5"): "whole ppd",
+    }
+    for k, (text, why) in enumerate(cases.items()):
+        p = _with(tmp_path, text, f"c{k}.LBL")
+        with pytest.raises(PDSError, match=why) as err:
+            pds_dem(p)
+        assert str(p) in str(err.value)
+
+
+def test_linear_time_on_comment_openers(tmp_path):
+    # 300,000 unclosed openers took ~14 minutes (quadratic); one line's check now refuses them at once
+    base = make_product(tmp_path, _surface()).read_text()
+    p = _with(tmp_path, base.replace("\n", "\n" + "/* " * 300_000 + "\n", 1))
+    with pytest.raises(PDSError, match="not closed on its line"):
+        pds_dem(p)
+
+
+def test_missing_constants_in_every_form(tmp_path):
+    r = _surface()
+    for form, dtype, cell in [("16#FFFF#", "<u2", 0xFFFF), ("-32000 <METER>", "<i2", -32000), ("0.1", "<f4", 0.1),
+                              ("-3.4028227E+38", "<f4", -3.4028227e38), ("16#FF7FFFFB#", ">f4", None)]:
+        kw = dict(dtype=dtype, offset=990_000.0) if dtype == "<u2" else dict(dtype=dtype)
+        if dtype[-2] == "f":
+            kw["scale"] = 1.0
+        path = make_product(tmp_path, r, extra=f"MISSING_CONSTANT = {form}", **kw)
+        img = tmp_path / "grid.img"
+        raw = bytearray(img.read_bytes())
+        dt = np.dtype(dtype)
+        raw[0:dt.itemsize] = (np.array(cell, dtype=dt).tobytes() if cell is not None
+                              else np.array(0xFF7FFFFB, dtype=">u4").tobytes())
+        img.write_bytes(bytes(raw))
+        with pytest.raises(PDSError, match="missing/invalid constant") as err:
+            pds_dem(path)
+        assert "1 samples" in str(err.value) or "1 sample" in str(err.value), form
+
+
+def test_heights_above_on_radii_and_too_small(tmp_path, lola_label):
+    with pytest.raises(PDSError, match="added to a product of radii"):
+        pds_dem(lola_label, heights_above=1737.4)
+    r = _surface()
+    path = make_product(tmp_path, r, height_ref=1000.0)
+    with pytest.raises(PDSError, match="grid.img.*not the radius the heights are above"):
+        pds_dem(path, heights_above=0.05)                      # radii 0.05 km +- heights: not a body
+    # without A_AXIS_RADIUS there is nothing to compare: the DEM's own refusal, with the files named
+    bare = _with(tmp_path, "\n".join(ln for ln in path.read_text().split("\n") if "AXIS_RADIUS" not in ln), "bare.LBL")
+    with pytest.raises(PDSError, match=r"grid.img \(label .*bare.LBL\): radii: .*must be positive"):
+        pds_dem(bare, heights_above=0.05)
+    dem = pds_dem(path, heights_above=np.float32(1000.0), dtype="float64")   # NumPy numbers are numbers
+    assert dem.radius(0.5, 0.5) == pytest.approx(r[89, 0], abs=1e-9)
+
+
+def test_forms_the_review_found_refused_are_read(tmp_path):
+    r = _surface()
+    base = make_product(tmp_path, r).read_text()
+    variants = {
+        "a line END inside a quoted string": base.replace("PDS_VERSION_ID = PDS3",
+                                                          'PDS_VERSION_ID = PDS3\nNOTE = "one\nEND\nthree"'),
+        "RECORD_BYTES with its unit": base.replace("RECORD_BYTES = 720", "RECORD_BYTES = 720 <BYTES>"),
+        "LINE_PREFIX_BYTES = 0 <bytes>": base.replace("  UNIT = METER", "  LINE_PREFIX_BYTES = 0 <bytes>\n  UNIT = METER"),
+        "a unit after a sequence": base.replace("PDS_VERSION_ID = PDS3", "PDS_VERSION_ID = PDS3\nX = (1, 2) <km>"),
+        "a comment after a value": base.replace("SCALING_FACTOR = 0.5", "SCALING_FACTOR = 0.5/* m per DN */"),
+        "lower-case end": base.replace("\nEND\n", "\nend\n"),
+    }
+    for what, text in variants.items():
+        dem = pds_dem(_with(tmp_path, text, "v.LBL"), dtype="float64")
+        np.testing.assert_allclose(np.asarray(dem.radii), r[::-1], rtol=0, atol=1e-9, err_msg=what)
+
+
+def test_unreadable_data_and_memory_are_named(tmp_path, monkeypatch):
+    import planet_intersect.pds as pds_mod
+
+    path = make_product(tmp_path, _surface())
+
+    def no_read(*a, **k):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(pds_mod.np, "memmap", no_read)
+    with pytest.raises(PDSError, match="cannot be read.*Permission denied"):
+        pds_dem(path)
+    monkeypatch.undo()
+
+    def no_memory(*a, **k):
+        raise MemoryError
+
+    monkeypatch.setattr(pds_mod.np, "empty", no_memory)
+    with pytest.raises(PDSError, match="do not fit in memory"):
+        pds_dem(path)
+
+
+def test_a_data_file_longer_than_its_grid_warns(tmp_path):
+    path = make_product(tmp_path, _surface())
+    img = tmp_path / "grid.img"
+    img.write_bytes(img.read_bytes() * 2)
+    with pytest.warns(UserWarning, match="bytes after the grid"):
+        pds_dem(path)
