@@ -33,24 +33,32 @@ __all__ = ["BuildingsResult", "buildings", "plot_buildings", "OUTCOMES", "outcom
 
 #: outcome classes of a ray against the exact mode's first hit (index -> label)
 OUTCOMES = ("first hit", "a later surface point (behind the first hit)", "oscillates", "does not converge",
-            "no hit reported")
+            "no hit (left the DSM, no data, missed)", "a point before the first hit")
 
 #: distance along the ray within which a hit counts as the exact mode's (m)
 SAME_HIT = 1e-3
 
 
 def outcome(res: DSMResult, ref: DSMResult, tol: float = SAME_HIT) -> np.ndarray:
-    """Each ray's class in :data:`OUTCOMES` (0-4) for result ``res`` against the
-    first hits ``ref`` (the exact mode's)."""
+    """Each ray's class in :data:`OUTCOMES` (0-5) for result ``res`` against the
+    first hits ``ref`` (the exact mode's). A hit where ``ref`` has none is
+    class 5 (it lies before whatever ``ref`` found: nothing)."""
     st = np.asarray(res.status)
-    hit = np.asarray(res.hit) & np.asarray(ref.hit)
+    hit, rhit = np.asarray(res.hit), np.asarray(ref.hit)
     d, dref = np.asarray(res.distance), np.asarray(ref.distance)
     out = np.full(st.shape, 4, dtype=np.int8)
-    out[hit & (np.abs(d - dref) <= tol)] = 0
-    out[hit & (d > dref + tol)] = 1
+    both = hit & rhit
+    out[both & (np.abs(d - dref) <= tol)] = 0
+    out[both & (d > dref + tol)] = 1
+    out[both & (d < dref - tol)] = 5
+    out[hit & ~rhit] = 5
     out[st == DSMStatus.OSCILLATION] = 2
     out[st == DSMStatus.NOT_CONVERGED] = 3
     return out
+
+
+def _rays_word(n: int) -> str:
+    return f"{n:,} ray" + ("" if n == 1 else "s")
 
 
 @dataclass
@@ -69,6 +77,11 @@ class BuildingsResult:
     iterates: dict  #: ray index -> (x_k, h_k, H_k) arrays of the iterative method's levels
     counts: dict = field(default_factory=dict)  #: method -> counts per OUTCOMES class, over the scene
     nscene: int = 0  #: rays over the scene
+    scene_rows: np.ndarray | None = None  #: the scene rays' target cells (row, column)
+    scene_cols: np.ndarray | None = None
+    scene_class: dict = field(default_factory=dict)  #: method -> OUTCOMES class of each scene ray
+    scene_height: np.ndarray | None = None  #: the exact mode's hit height of each scene ray
+    scene_wall: np.ndarray | None = None  #: the exact mode's hit is on a wall (the surface is taller there)
 
     def x_of(self, lat, lon) -> np.ndarray:
         """Metres east of the scene's west edge of points (lat, lon) (1 m cells)."""
@@ -132,9 +145,11 @@ def buildings(size: int = 640, zenith: float = 25.0, stride: int = 2, altitude: 
     south edge, scaled with size, through the L-shaped building and the
     slab).
     """
-    if not (isinstance(zenith, (int, float)) and 0.0 < zenith < 80.0):
+    if isinstance(zenith, (bool, np.bool_)) or not isinstance(zenith, (int, float, np.integer, np.floating)) or \
+            not 0.0 < zenith < 80.0:
         raise ValueError(f"zenith must be a number of degrees in (0, 80), got {zenith!r}")
-    if not (isinstance(stride, (int, np.integer)) and stride >= 1):
+    zenith = float(zenith)
+    if isinstance(stride, (bool, np.bool_)) or not (isinstance(stride, (int, np.integer)) and stride >= 1):
         raise ValueError(f"stride must be an integer >= 1, got {stride!r}")
     sc = paper_scene(size, base="flat")
     n = sc["heights"].shape[0]
@@ -142,7 +157,7 @@ def buildings(size: int = 640, zenith: float = 25.0, stride: int = 2, altitude: 
                                  interpolation="nearest")
     if row is None:
         row = n - 1 - int(round((0.1 + 0.8 * 366.0 / 512.0) * n))
-    if not (isinstance(row, (int, np.integer)) and 0 <= row < n):
+    if isinstance(row, (bool, np.bool_)) or not (isinstance(row, (int, np.integer)) and 0 <= row < n):
         raise ValueError(f"row must be an integer in [0, {n}), got {row!r}")
     cols = np.arange(n)
     s, l = _rays(sc, row, cols, zenith, altitude)
@@ -162,10 +177,37 @@ def buildings(size: int = 640, zenith: float = 25.0, stride: int = 2, altitude: 
     s2, l2 = _rays(sc, rr, cc, zenith, altitude)
     ref = intersect_dsm(dsm, s2, l2, method="exact", threads=threads)
     ex.nscene = len(ref)
+    ex.scene_rows, ex.scene_cols = rr.ravel(), cc.ravel()
+    ex.scene_height = np.asarray(ref.height).copy()
+    ex.scene_wall = np.asarray(ref.surface_height) > ex.scene_height + 1e-6
     for m in ("exact", "following", "iterative"):
         res = ref if m == "exact" else intersect_dsm(dsm, s2, l2, method=m, threads=threads)
-        ex.counts[m] = np.bincount(outcome(res, ref), minlength=len(OUTCOMES)).tolist()
+        ex.scene_class[m] = outcome(res, ref)
+        ex.counts[m] = np.bincount(ex.scene_class[m], minlength=len(OUTCOMES)).tolist()
     return ex
+
+
+def following_samples(ex: BuildingsResult, i: int):
+    """The paper's ray-following samples of section ray i, for the drawing: (x, h) from the
+    start r_min = r_e - H_max / sin(theta_i) (eq. 3, notes 3-4) in steps D / cos(theta_i)
+    (eq. 4, notes 7-8: D the smaller side of a cell at the ray's projected point) up to the
+    package's reported hit (the refinement between the last two samples is not drawn)."""
+    dsm, s, l = ex.dsm, ex.s[i], ex.l[i]
+    fo = ex.results["following"]
+    r_e = _crossing(s, l, 0.0, dsm.a, dsm.f)
+    lat, lon, _ = ecef_to_geodetic(s + r_e * l, a=dsm.a, f=dsm.f)
+    la = np.radians(float(lat))
+    e2 = dsm.f * (2 - dsm.f)
+    w = np.sqrt(1 - e2 * np.sin(la) ** 2)
+    d = min(dsm.a * (1 - e2) / w ** 3 * np.radians(abs(dsm.dlat)), dsm.a / w * np.cos(la) * np.radians(dsm.dlon))
+    lo = np.radians(float(lon))
+    up = np.array([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)])
+    sin_ti = -float(np.dot(l, up))
+    cos_ti = np.sqrt(max(0.0, 1 - sin_ti ** 2))
+    r0, dr = r_e - dsm.hmax / sin_ti, d / cos_ti
+    k = np.arange(int(np.ceil((float(fo.distance[i]) - r0) / dr)) + 1)
+    lat, lon, h = ecef_to_geodetic(s + (r0 + k * dr)[:, None] * l, a=dsm.a, f=dsm.f)
+    return ex.x_of(lat, lon), np.asarray(h)
 
 
 def plot_buildings(ex: BuildingsResult, path) -> None:
@@ -177,7 +219,7 @@ def plot_buildings(ex: BuildingsResult, path) -> None:
     fig, ax = plt.subplots(2, 2, figsize=(14, 9))
     xs = np.r_[ex.x - 0.5, ex.x[-1] + 0.5]
     prof = np.r_[ex.section, ex.section[-1]]
-    top = float(np.max(ex.section)) + 25.0
+    top = max(float(np.max(ex.section)) + 25.0, ex.dsm.hmax + 8.0)
     tz = np.tan(np.radians(ex.zenith))
     exact = ex.results["exact"]
     xe = ex.x_of(exact.lat, exact.lon)
@@ -202,10 +244,10 @@ def plot_buildings(ex: BuildingsResult, path) -> None:
     for k, (mark, colour) in {0: ("o", "tab:green"), 1: ("x", "tab:red")}.items():
         m = oc["iterative"] == k
         a.plot(xi[m], it.height[m], mark, ms=3, color=colour, zorder=3,
-               label=f"{OUTCOMES[k]}: {int(m.sum())} rays")
+               label=f"{OUTCOMES[k]}: {_rays_word(int(m.sum()))}")
     m = oc["iterative"] == 2
     a.plot(ex.x[m], np.zeros(int(m.sum())) - 2.5, "|", color="tab:orange", ms=6, zorder=3,
-           label=f"oscillates (aimed here): {int(m.sum())} rays")
+           label=f"oscillates (aimed here): {_rays_word(int(m.sum()))}")
     for i, (xk, hk, Hk) in ex.iterates.items():
         a.plot([ex.x[i] + top * tz, ex.x[i]], [top, 0.0], color="k", lw=0.8, zorder=2)   # the whole ray
         zx, zy = [xk[0]], [hk[0]]
@@ -218,7 +260,12 @@ def plot_buildings(ex: BuildingsResult, path) -> None:
                 zy.append(hk[k + 1])
         a.plot(zx, zy, "--", color="tab:purple", lw=1.2, zorder=4)
         a.plot(xk, hk, "s", color="tab:purple", ms=4, zorder=4)
+        if oc["iterative"][i] == 1:                   # Fig. 1c: A, the surface point that hides B
+            a.plot(xe[i], exact.height[i], "*", color="k", ms=9, zorder=5)
+            a.annotate("A", (xe[i], exact.height[i]), xytext=(4, 4), textcoords="offset points", fontsize=9)
+            a.annotate("B", (xk[-1], hk[-1]), xytext=(-10, 4), textcoords="offset points", fontsize=9)
     a.plot([], [], "--s", color="tab:purple", ms=4, label="two rays' levels: ray at h_k, DSM height H there, ...")
+    a.plot([], [], "*", color="k", ms=9, label="A: the first hit that B, where the iteration stops, hides")
     a.legend(loc="upper left", fontsize=7)
     # (b) following
     a = ax[0, 1]
@@ -226,23 +273,29 @@ def plot_buildings(ex: BuildingsResult, path) -> None:
     xf = ex.x_of(fo.lat, fo.lon)
     ground(a, "(b) ray following (paper's Fig. 2)")
     m0, m1 = oc["following"] == 0, oc["following"] == 1
-    a.plot(xf[m0], fo.height[m0], "o", ms=2.5, color="tab:blue", zorder=3, label=f"first hit: {int(m0.sum())} rays")
+    a.plot(xf[m0], fo.height[m0], "o", ms=2.5, color="tab:blue", zorder=3, label=f"first hit: {_rays_word(int(m0.sum()))}")
     for i in np.flatnonzero(m1):
         a.annotate("", xy=(xf[i], fo.height[i]), xytext=(xe[i], exact.height[i]),
                    arrowprops=dict(arrowstyle="->", color="tab:red", lw=0.8), zorder=4)
-    a.plot([], [], "-", color="tab:red", label=f"late (arrow from the first hit): {int(m1.sum())} rays")
+    a.plot([], [], "-", color="tab:red", label=f"late (arrow from the first hit): {_rays_word(int(m1.sum()))}")
+    for i in ex.iterates:
+        if oc["iterative"][i] == 1:                   # the same ray as Fig. 1c's: the following's steps
+            xs_, hs_ = following_samples(ex, i)
+            a.plot([ex.x[i] + top * tz, ex.x[i]], [top, 0.0], color="k", lw=0.8, zorder=2)
+            a.plot(xs_, hs_, "o", mfc="none", color="tab:purple", ms=4, zorder=4,
+                   label=f"one ray's steps from H_max (eqs. 3-5), {len(xs_)} to its hit")
     steps = np.asarray(fo.nsteps)[np.asarray(fo.hit)]
     a.legend(loc="upper left", fontsize=7, title=f"{np.mean(steps):.0f} steps a ray", title_fontsize=7)
     # (c) exact
     a = ax[1, 0]
     ground(a, "(c) exact mode: the first entry into the surface")
     rays(a, range(0, len(xe), 8))
-    a.plot(xe, exact.height, ".", ms=2.5, color="k", zorder=3, label=f"first hit: {int(np.sum(exact.hit))} rays")
+    a.plot(xe, exact.height, ".", ms=2.5, color="k", zorder=3, label=f"first hit: {_rays_word(int(np.sum(exact.hit)))}")
     a.legend(loc="upper left", fontsize=7)
     # (d) counts over the scene
     a = ax[1, 1]
     methods = ("following", "iterative")
-    colours = ("tab:green", "tab:red", "tab:orange", "tab:brown", "0.5")
+    colours = ("tab:green", "tab:red", "tab:orange", "tab:brown", "0.5", "tab:pink")
     left = np.zeros(len(methods))
     for k, label in enumerate(OUTCOMES):
         c = np.array([ex.counts[m][k] for m in methods])
