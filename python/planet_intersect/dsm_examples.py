@@ -174,15 +174,22 @@ def buildings(size: int = 640, zenith: float = 25.0, stride: int = 2, altitude: 
             lat, lon = np.array(pts).T
             ex.iterates[i] = (ex.x_of(lat, lon), levels, heights)
     rr, cc = np.meshgrid(np.arange(0, n, stride), np.arange(0, n, stride), indexing="ij")
-    s2, l2 = _rays(sc, rr, cc, zenith, altitude)
-    ref = intersect_dsm(dsm, s2, l2, method="exact", threads=threads)
-    ex.nscene = len(ref)
     ex.scene_rows, ex.scene_cols = rr.ravel(), cc.ravel()
-    ex.scene_height = np.asarray(ref.height).copy()
-    ex.scene_wall = np.asarray(ref.surface_height) > ex.scene_height + 1e-6
-    for m in ("exact", "following", "iterative"):
-        res = ref if m == "exact" else intersect_dsm(dsm, s2, l2, method=m, threads=threads)
-        ex.scene_class[m] = outcome(res, ref)
+    ex.nscene = ex.scene_rows.size
+    ex.scene_height = np.empty(ex.nscene)
+    ex.scene_wall = np.empty(ex.nscene, dtype=bool)
+    ex.scene_class = {m: np.empty(ex.nscene, dtype=np.int8) for m in ("exact", "following", "iterative")}
+    chunk = 131_072                                      # rays at a time: a few hundred MB at most
+    for k0 in range(0, ex.nscene, chunk):
+        part = slice(k0, k0 + chunk)
+        s2, l2 = _rays(sc, ex.scene_rows[part], ex.scene_cols[part], zenith, altitude)
+        ref = intersect_dsm(dsm, s2, l2, method="exact", threads=threads)
+        ex.scene_height[part] = ref.height
+        ex.scene_wall[part] = np.asarray(ref.surface_height) > np.asarray(ref.height) + 1e-6
+        for m in ("exact", "following", "iterative"):
+            res = ref if m == "exact" else intersect_dsm(dsm, s2, l2, method=m, threads=threads)
+            ex.scene_class[m][part] = outcome(res, ref)
+    for m in ex.scene_class:
         ex.counts[m] = np.bincount(ex.scene_class[m], minlength=len(OUTCOMES)).tolist()
     return ex
 
