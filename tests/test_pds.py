@@ -257,6 +257,7 @@ def test_broken_labels_and_files_are_refused_by_name(tmp_path):
         "projection": text.replace('"SIMPLE\n     CYLINDRICAL"', "POLAR_STEREOGRAPHIC"),
         "no image": text.replace("OBJECT = IMAGE\n", "OBJECT = TABLE\n").replace("END_OBJECT = IMAGE\n",
                                                                                  "END_OBJECT = TABLE\n"),
+        "no projection": text.replace("OBJECT = IMAGE_MAP_PROJECTION", "OBJECT = MAP"),
         "unclosed": text.replace("END_OBJECT = IMAGE_MAP_PROJECTION\n", ""),
         "missing file": text.replace('"GRID.IMG"', '"NONE.IMG"'),
         "short file": text.replace("LINES = 180", "LINES = 360").replace("LINE_SAMPLES = 360",
@@ -265,7 +266,8 @@ def test_broken_labels_and_files_are_refused_by_name(tmp_path):
     }
     words = {"no END": "no END", "regional": "global", "resolution": "180 ppd", "west": "WEST",
              "sample type": "SAMPLE_TYPE", "projection": "MAP_PROJECTION_TYPE", "no image": "no IMAGE",
-             "unclosed": "not closed", "missing file": "not beside it", "short file": "bytes"}
+             "unclosed": "not closed", "missing file": "not beside it", "short file": "bytes",
+             "no projection": "no IMAGE_MAP_PROJECTION"}
     for what, t in cases.items():
         p = tmp_path / f"case_{what.replace(' ', '_')}.LBL"
         p.write_text(t)
@@ -279,7 +281,7 @@ def test_broken_labels_and_files_are_refused_by_name(tmp_path):
     assert not (tmp_path / "x.hdr").exists()
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.data())
 def test_mangled_labels_give_a_dem_or_a_named_refusal(tmp_path_factory, data):
     tmp = tmp_path_factory.mktemp("pds")
@@ -293,7 +295,9 @@ def test_mangled_labels_give_a_dem_or_a_named_refusal(tmp_path_factory, data):
         elif op == "ins":
             text = text[:k] + data.draw(st.sampled_from(['"', "'", "(", ")", "{", "}", "=", "<", ">", "/*", "*/",
                                                          "\n", "END\n", "OBJECT = X\n", "END_OBJECT\n", "1e999",
-                                                         "nan", "-7", "0", "\x00", "é"])) + text[k:]
+                                                         "nan", "-7", "0", "\x00", "é", "9" * 400, "(((((",
+                                                         "<BYTES>", "^IMAGE = 3\n", "GROUP = G\n",
+                                                         "END_GROUP = G\n", "16#FF#", "_", "inf"])) + text[k:]
         else:
             j = data.draw(st.integers(0, len(text)))
             text = text[:k] + text[min(j, k):max(j, k)] + text[k:]

@@ -499,6 +499,8 @@ def _grid(path: Path, tree: dict, heights_above, dtype_out):
 def _spheroid(path: Path, tree: dict):
     """(re km, f) from A_AXIS_RADIUS, B and C (km unless a unit says otherwise); (None, 0) if absent."""
     proj, _ = _find(tree, "OBJECT:IMAGE_MAP_PROJECTION")
+    if not isinstance(proj, dict):
+        raise PDSError(f"PDS label {path}: no IMAGE_MAP_PROJECTION object (is the grid in latitude/longitude?)")
     units = {"KM": 1.0, "KILOMETER": 1.0, "KILOMETERS": 1.0, "M": 1e-3, "METER": 1e-3, "METERS": 1e-3}
     if proj.get("A_AXIS_RADIUS") is None:
         return None, 0.0
