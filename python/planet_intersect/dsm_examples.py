@@ -75,13 +75,21 @@ class BuildingsResult:
     l: np.ndarray  #: unit directions (n, 3)
     results: dict  #: method -> DSMResult on the section's rays
     iterates: dict  #: ray index -> (x_k, h_k, H_k) arrays of the iterative method's levels
-    counts: dict = field(default_factory=dict)  #: method -> counts per OUTCOMES class, over the scene
-    nscene: int = 0  #: rays over the scene
     scene_rows: np.ndarray | None = None  #: the scene rays' target cells (row, column)
     scene_cols: np.ndarray | None = None
     scene_class: dict = field(default_factory=dict)  #: method -> OUTCOMES class of each scene ray
     scene_height: np.ndarray | None = None  #: the exact mode's hit height of each scene ray
     scene_wall: np.ndarray | None = None  #: the exact mode's hit is on a wall (the surface is taller there)
+
+    @property
+    def nscene(self) -> int:
+        """Rays over the scene."""
+        return 0 if self.scene_rows is None else int(self.scene_rows.size)
+
+    @property
+    def counts(self) -> dict:
+        """Method -> rays per OUTCOMES class, over the scene."""
+        return {m: np.bincount(c, minlength=len(OUTCOMES)).tolist() for m, c in self.scene_class.items()}
 
     def x_of(self, lat, lon) -> np.ndarray:
         """Metres east of the scene's west edge of points (lat, lon) (1 m cells)."""
@@ -175,7 +183,6 @@ def buildings(size: int = 640, zenith: float = 25.0, stride: int = 2, altitude: 
             ex.iterates[i] = (ex.x_of(lat, lon), levels, heights)
     rr, cc = np.meshgrid(np.arange(0, n, stride), np.arange(0, n, stride), indexing="ij")
     ex.scene_rows, ex.scene_cols = rr.ravel(), cc.ravel()
-    ex.nscene = ex.scene_rows.size
     ex.scene_height = np.empty(ex.nscene)
     ex.scene_wall = np.empty(ex.nscene, dtype=bool)
     ex.scene_class = {m: np.empty(ex.nscene, dtype=np.int8) for m in ("exact", "following", "iterative")}
@@ -189,8 +196,6 @@ def buildings(size: int = 640, zenith: float = 25.0, stride: int = 2, altitude: 
         for m in ("exact", "following", "iterative"):
             res = ref if m == "exact" else intersect_dsm(dsm, s2, l2, method=m, threads=threads)
             ex.scene_class[m][part] = outcome(res, ref)
-    for m in ex.scene_class:
-        ex.counts[m] = np.bincount(ex.scene_class[m], minlength=len(OUTCOMES)).tolist()
     return ex
 
 
