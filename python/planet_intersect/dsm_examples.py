@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .dsm import DSMResult, DSMStatus, GeodeticDSM, intersect_dsm
+from .dsm import DSMResult, DSMStatus, GeodeticDSM, _ellipsoid_entry, intersect_dsm
 from .geodetic import ecef_to_geodetic, geodetic_to_ecef
 from .synthetic_dsm import _from_above, paper_scene
 
@@ -107,9 +107,11 @@ def _rays(scene: dict, rows, cols, zenith: float, altitude: float):
     return _from_above(target, lat, lon, altitude, np.full(lat.size, float(zenith)), np.full(lat.size, np.pi / 2))
 
 
-def _crossing(s, l, h, a, f, r=0.0) -> float:
-    """Distance along the ray s + r l to its first crossing of geodetic height h (Newton
-    from the focal point: h(r) is convex, so the iterates approach from before the crossing)."""
+def _crossing(s, l, h, a, f) -> float:
+    """Distance along the ray s + r l to its crossing of geodetic height h near the ellipsoid
+    raised by h (Newton with a 1 m secant slope from there, as note 13's iteration starts)."""
+    b = a * (1 - f)
+    r = float(_ellipsoid_entry(s[None, :], l[None, :], a + h, 1 - (b + h) / (a + h))[0])
     for _ in range(60):
         _, _, hr = ecef_to_geodetic(s + r * l, a=a, f=f)
         _, _, h1 = ecef_to_geodetic(s + (r + 1.0) * l, a=a, f=f)
@@ -206,7 +208,7 @@ def following_samples(ex: BuildingsResult, i: int):
     package's reported hit (the refinement between the last two samples is not drawn)."""
     dsm, s, l = ex.dsm, ex.s[i], ex.l[i]
     fo = ex.results["following"]
-    r_e = _crossing(s, l, 0.0, dsm.a, dsm.f)
+    r_e = float(_ellipsoid_entry(s[None, :], l[None, :], dsm.a, dsm.f)[0])
     lat, lon, _ = ecef_to_geodetic(s + r_e * l, a=dsm.a, f=dsm.f)
     la = np.radians(float(lat))
     e2 = dsm.f * (2 - dsm.f)

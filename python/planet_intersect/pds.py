@@ -300,7 +300,7 @@ def _text(obj: dict, key: str, default=None):
 
 
 # ------------------------------------------------------------------ the grid
-def _data_file(label_path: Path, pointer, holder: dict, path) -> tuple[Path, int]:
+def _data_file(path: Path, pointer, holder: dict) -> tuple[Path, int]:
     """(file, byte offset) of ^IMAGE: "FILE", ("FILE", record), record, or n <BYTES>."""
 
     def records(nrec):
@@ -321,13 +321,13 @@ def _data_file(label_path: Path, pointer, holder: dict, path) -> tuple[Path, int
     elif type(pointer) is tuple and len(pointer) == 2 and isinstance(pointer[0], str):
         name, offset = pointer[0], records(pointer[1])
     else:
-        return label_path, records(pointer)              # attached: the data follow in the same file
+        return path, records(pointer)                    # attached: the data follow in the same file
     if not name or "\x00" in name:
         raise PDSError(f"PDS label {path}: ^IMAGE names no file ({name!r})")
-    cand = label_path.parent / name
+    cand = path.parent / name
     try:
         if not cand.is_file():                           # PDS names are upper case; disks often not
-            low = {p.name.lower(): p for p in label_path.parent.iterdir()} if label_path.parent.is_dir() else {}
+            low = {p.name.lower(): p for p in path.parent.iterdir()} if path.parent.is_dir() else {}
             cand = low.get(name.lower(), cand)
     except OSError as exc:
         raise PDSError(f"PDS label {path}: cannot look for its ^IMAGE file {name!r} "
@@ -366,7 +366,7 @@ def _missing_values(img: dict, dtype: np.dtype, path) -> list:
 
 
 def _grid(path: Path, tree: dict, heights_above, dtype_out):
-    """The radii in km as a DEM wants them (row 0 south, column 0 at 0 E) and the metadata."""
+    """The radii in km as a DEM wants them (row 0 south, column 0 at 0 E) and the data file."""
     img, _ = _find(tree, "OBJECT:IMAGE")
     if not isinstance(img, dict):
         raise PDSError(f"PDS label {path}: no IMAGE object")
@@ -449,7 +449,7 @@ def _grid(path: Path, tree: dict, heights_above, dtype_out):
     pointer, holder = _find(tree, "^IMAGE")
     if pointer is None:
         raise PDSError(f"PDS label {path}: no ^IMAGE pointer")
-    data, start = _data_file(path, pointer, holder, path)
+    data, start = _data_file(path, pointer, holder)
     try:
         size = data.stat().st_size
         if size < start + nbytes:
@@ -493,7 +493,7 @@ def _grid(path: Path, tree: dict, heights_above, dtype_out):
     if nonfinite:
         raise PDSError(f"PDS data {data}: {nonfinite:,} values are NaN or infinite (as samples, or after "
                        f"SCALING_FACTOR and OFFSET)")
-    return out, dict(ppd=ppd, data=data)
+    return out, data
 
 
 def _spheroid(path: Path, tree: dict):
@@ -544,7 +544,7 @@ def pds_dem(label: str | os.PathLike, *, heights_above: float | None = None, dty
     path = Path(label)
     tree = read_pds3_label(path)
     re_km, f = _spheroid(path, tree)
-    km, meta = _grid(path, tree, heights_above, dtype)
+    km, data = _grid(path, tree, heights_above, dtype)
     if re_km is not None:
         sub = km[::max(1, km.shape[0] // 360), ::max(1, km.shape[1] // 720)]
         med = float(np.median(sub))
@@ -552,12 +552,12 @@ def pds_dem(label: str | os.PathLike, *, heights_above: float | None = None, dty
             hint = ("heights? give heights_above=the radius they are above" if heights_above is None else
                     f"heights_above={heights_above} added to a product of radii?" if med > re_km else
                     f"heights_above={heights_above} is not the radius the heights are above?")
-            raise PDSError(f"PDS data {meta['data']}: its median radius {med:.6g} km is not within a factor "
+            raise PDSError(f"PDS data {data}: its median radius {med:.6g} km is not within a factor "
                            f"{RADIUS_FACTOR} of A_AXIS_RADIUS = {re_km} km ({hint})")
     try:
         return DEM.from_array(km, f=f, re=re_km)
     except DEMError as exc:
-        raise PDSError(f"PDS data {meta['data']} (label {path}): {exc}") from None
+        raise PDSError(f"PDS data {data} (label {path}): {exc}") from None
 
 
 def import_pds(label: str | os.PathLike, out: str | os.PathLike, *, heights_above: float | None = None,
