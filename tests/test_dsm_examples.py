@@ -274,3 +274,6 @@ def test_buildings_rejects_bad_arguments():
         dsm_examples.buildings(size=64, stride=0)
     with pytest.raises(ValueError, match="row"):
         dsm_examples.buildings(size=64, row=64)
+    for size in (10 ** 6, 63, 64.0, True):              # 10**6: a TiB allocation before the check
+        with pytest.raises(ValueError, match="size must be an integer from 64 to 4096"):
+            dsm_examples.buildings(size=size)

@@ -148,7 +148,7 @@ def buildings(size: int = 640, zenith: float = 25.0, stride: int = 2, altitude: 
               row: int | None = None, threads: int | None = None) -> BuildingsResult:
     """The three methods on a section through the paper's buildings and over the whole scene.
 
-    size: the scene's side in metres (1 m cells; >= 64); zenith: the rays'
+    size: the scene's side in metres (1 m cells; 64 to 4096); zenith: the rays'
     zenith angle (degrees, 0 < zenith < 80), arriving from the east;
     stride: every stride-th row and column of the scene gets a ray for the
     counts; row: the section's row (default: 430 m north of the scene's
@@ -161,7 +161,10 @@ def buildings(size: int = 640, zenith: float = 25.0, stride: int = 2, altitude: 
     zenith = float(zenith)
     if isinstance(stride, (bool, np.bool_)) or not (isinstance(stride, (int, np.integer)) and stride >= 1):
         raise ValueError(f"stride must be an integer >= 1, got {stride!r}")
-    sc = paper_scene(size, base="flat")
+    if isinstance(size, (bool, np.bool_)) or not (isinstance(size, (int, np.integer)) and 64 <= size <= 4096):
+        raise ValueError(f"size must be an integer from 64 to 4096 (metres; the scene is size x size cells), "
+                         f"got {size!r}")
+    sc = paper_scene(int(size), base="flat")
     n = sc["heights"].shape[0]
     dsm = GeodeticDSM.from_array(sc["heights"], sc["lat_first"], sc["lon_first"], sc["dlat"], sc["dlon"],
                                  interpolation="nearest")
