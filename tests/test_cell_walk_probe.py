@@ -1,0 +1,104 @@
+"""The cell-walk speed probe (benchmarks/cell_walk.py, docs/shin-park-notes.md "Fifteenth look").
+
+The probe is unsound on purpose. Its speed bounds what a sound cell walk could reach, so the
+notes' argument rests on two things it claims to do, and this file checks both:
+
+* it finds the same first hits as the exact mode, up to its straight track's error;
+* its cubic map gives (row, column, height) to a few nanometres over the scene's box.
+
+The exact mode is itself checked against the exhaustive reference (test_dsm_references.py).
+The cubic map is checked against the package's geodetic_to_ecef (by fit_cubic) and against
+pyproj's geodetic conversion. Nothing here is timed.
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "benchmarks"))
+
+import planet_intersect as pi  # noqa: E402
+from planet_intersect import synthetic_dsm as sd  # noqa: E402
+
+pytestmark = pytest.mark.skipif(shutil.which("gfortran") is None,
+                                reason="gfortran not found: the probe is compiled at run time (./dev setup installs it)")
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    import cell_walk as cw
+
+    grid = sd.building_scene(n=256, seed=11)
+    grid.pop("roof_id")
+    s, l = sd.pushbroom_rays(grid, 600, seed=3)
+    h = grid["heights"]
+    coef, cen, err = cw.fit_cubic(grid, float(h.min()), float(h.max()), npts=40_000)
+    probe = cw.CellWalk(tmp_path_factory.mktemp("cell_walk"))
+    probe.prepare(h)
+    dsm = pi.GeodeticDSM.from_array(h, grid["lat_first"], grid["lon_first"], grid["dlat"], grid["dlon"],
+                                    a=grid["a"], f=grid["f"])
+    ex = pi.intersect(dsm, s, l, method="exact", threads=1)
+    return dict(grid=grid, s=s, l=l, coef=coef, cen=cen, err=err, probe=probe, exact=ex)
+
+
+def test_the_cubic_map_is_nanometre_accurate_over_the_scene(scene):
+    # measured on fresh points by fit_cubic itself (against geodetic_to_ecef) ...
+    err = scene["err"]
+    assert err[0] < 1e-7 and err[1] < 1e-7          # rows, columns
+    assert err[2] < 1e-7                             # metres
+    # ... and here against pyproj's geodetic conversion, a code the package does not share
+    pyproj = pytest.importorskip("pyproj")
+    import cell_walk as cw
+
+    g = scene["grid"]
+    rng = np.random.default_rng(5)
+    nr, nc = g["heights"].shape
+    i, j = rng.uniform(0, nr - 1, 2000), rng.uniform(0, nc - 1, 2000)
+    hmin, hmax = float(g["heights"].min()), float(g["heights"].max())
+    h = rng.uniform(hmin, hmax, 2000)
+    lat, lon = g["lat_first"] + i * g["dlat"], g["lon_first"] + j * g["dlon"]
+    to_xyz = pyproj.Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
+    x, y, z = to_xyz.transform(lon, lat, h)
+    off = (np.c_[x, y, z] - scene["cen"]) * 1e-3
+    mons = cw.monomials()
+    design = np.stack([off[:, 0] ** a * off[:, 1] ** b * off[:, 2] ** c for a, b, c in mons], axis=1)
+    got = design @ scene["coef"]
+    assert np.abs(got[:, 0] - i).max() < 1e-7
+    assert np.abs(got[:, 1] - j).max() < 1e-7
+    assert np.abs(got[:, 2] - h).max() < 1e-7
+
+
+@pytest.mark.parametrize("conv", [0, 1], ids=["heikkinen", "cubic"])
+def test_the_probe_finds_the_exact_modes_hits_to_its_straight_tracks_error(scene, conv):
+    d, count = scene["probe"].trace(scene["grid"], scene["s"], scene["l"], conv, scene["coef"], scene["cen"])
+    ex = scene["exact"]
+    ref = np.where(ex.hit, ex.distance, np.nan)
+    both = np.isfinite(d) & np.isfinite(ref)
+    # it walks: a few blocks and cells a ray, not the slab's ~100 cells one by one
+    assert 1 <= count[1] <= 40 and 1 <= count[0] <= 40
+    # hits where the exact mode hits, at its distance: the straight track's sagitta is
+    # millimetres over the slab (the notes: median 0.5 mm, 99th percentile 1.6-2.3 cm on 2,048^2)
+    assert both.sum() >= 0.97 * np.isfinite(ref).sum()
+    diff = np.abs(d - ref)[both]
+    assert np.median(diff) < 2e-3
+    assert np.mean(diff < 0.05) >= 0.97
+    # and not the exact mode: some differ by more than the package's 1e-6 m tolerance
+    assert np.mean(diff > 1e-5) > 0.05
+
+
+def test_the_two_conversions_give_the_same_walk(scene):
+    a, ca = scene["probe"].trace(scene["grid"], scene["s"], scene["l"], 0, scene["coef"], scene["cen"])
+    b, cb = scene["probe"].trace(scene["grid"], scene["s"], scene["l"], 1, scene["coef"], scene["cen"])
+    both = np.isfinite(a) & np.isfinite(b)
+    assert both.sum() == np.isfinite(a).sum() == np.isfinite(b).sum()
+    # a 3e-9-cell map error moves a root by far less than the track's own error
+    assert np.mean(np.abs(a - b)[both] < 1e-4) >= 0.99
+    # the set-up alone (level 2) makes no hit
+    c, cc = scene["probe"].trace(scene["grid"], scene["s"], scene["l"], 0, scene["coef"], scene["cen"], level=2)
+    assert not np.isfinite(c).any() and cc[0] == 0 and cc[1] == 0
