@@ -2,15 +2,17 @@
 faithful following and Orekit Rugged on the geodetic benchmark's building scene and rays.
 
     ./dev bench --cell-walk [--n 2048] [--rays 20000] [--rounds 7] [--out benchmarks/results/cell_walk.json]
+                            [--figure docs/figures/cell_walk_bound.png]
 
 Issue 11 asks the exact mode for 10x Rugged's Duvenhage and 20x the faithful following. Fourteen
-looks at the exact mode (docs/shin-park-notes.md) left it at 4.2-6.2x and 4.4-6.8x. This probe asks
+looks at the exact mode (docs/shin-park-notes.md) left it at 4.2-6.3x and 4.4-7.1x. This probe asks
 a different question: how fast could ANY design that walks the ray's cells be? It times
-``benchmarks/cell_walk/cell_walk_bound.f90``, compiled here with the package's own flags: per ray two
-crossings of raised ellipsoids, two conversions, a walk over 8 x 8-cell block maxima and then cells,
-a closed-form bilinear root on a straight track -- and none of what makes an answer exact (margins,
-the curved track, refinement, no-data, walls, edges). It is not sound (the output counts how many
-of its hits differ from the exact mode's), so its speed is an upper bound on a sound walk's.
+``benchmarks/cell_walk/cell_walk_bound.f90``, compiled here with the package's own flags. Per ray:
+two crossings of raised ellipsoids, two conversions, a walk over 8 x 8-cell block maxima and then
+cells, and a closed-form bilinear root on a straight track. Also timed: cells alone, and 32 x 32-cell
+superblocks above the blocks. None of what makes an answer exact is there (margins, the curved
+track, refinement, no-data, walls). It is not sound (the output counts how many of its hits differ
+from the exact mode's), so its speed is an upper bound on a sound walk's.
 
 Two conversions are timed: Heikkinen's exact closed form, and a cubic polynomial fitted over the
 scene's box (the fit's error on fresh points is measured against the package's geodetic_to_ecef and
@@ -95,12 +97,18 @@ class CellWalk:
         self.h = np.ascontiguousarray(heights, dtype=np.float64)
         nr, nc = self.h.shape
         self.nbr, self.nbc = -(-(nr - 1) // BLOCK), -(-(nc - 1) // BLOCK)
+        self.nsr, self.nsc = -(-self.nbr // 4), -(-self.nbc // 4)
         self.cmax = np.empty((nr - 1, nc - 1), np.float32)
         self.bmax = np.empty((self.nbr, self.nbc), np.float32)
+        self.smax = np.empty((self.nsr, self.nsc), np.float32)
         i, p = ctypes.c_int, lambda a: a.ctypes.data_as(ctypes.c_void_p)
-        self.lib.walk_prepare(i(nr), i(nc), p(self.h), i(BLOCK), i(self.nbr), i(self.nbc), p(self.cmax), p(self.bmax))
+        self.lib.walk_prepare(i(nr), i(nc), p(self.h), i(BLOCK), i(self.nbr), i(self.nbc), p(self.cmax), p(self.bmax),
+                              i(self.nsr), i(self.nsc), p(self.smax))
 
     def trace(self, grid: dict, s, l, conv: int, coef, cen, level: int = 1):
+        """(distances, NaN where no hit; (cells, blocks, superblocks) visited per ray). level 0: cells
+        only; 1: 8 x 8-cell blocks, then cells; 3: 32 x 32-cell superblocks, blocks, cells; 2: the
+        set-up alone (crossings and conversions, no walk)."""
         nr, nc = self.h.shape
         g = np.array([grid["lat_first"], grid["lon_first"], grid["dlat"], grid["dlon"], grid["a"], grid["f"],
                       float(self.h.min()), float(self.h.max())])
@@ -109,10 +117,11 @@ class CellWalk:
         coef_f = np.ascontiguousarray(np.asarray(coef, np.float64).T)    # Fortran coef(20, 3)
         cen = np.ascontiguousarray(cen, np.float64)
         dist = np.empty(len(s))
-        count = np.zeros(2)
+        count = np.zeros(3)
         i, p = ctypes.c_int, lambda a: a.ctypes.data_as(ctypes.c_void_p)
         self.lib.walk_trace(i(nr), i(nc), p(self.h), p(self.cmax), i(BLOCK), i(self.nbr), i(self.nbc), p(self.bmax),
-                             p(g), i(conv), p(coef_f), p(cen), i(level), i(len(s)), p(s), p(l), p(dist), p(count))
+                            i(self.nsr), i(self.nsc), p(self.smax), p(g), i(conv), p(coef_f), p(cen), i(level),
+                            i(len(s)), p(s), p(l), p(dist), p(count))
         return np.where(dist >= 0, dist, np.nan), count / len(s)
 
 
@@ -143,6 +152,10 @@ def run(scene: str, n: int, nrays: int, rounds: int, workdir: Path) -> dict:
                                 "hits": int(np.isfinite(d).sum()), "exact_hits": int(np.isfinite(ref).sum()),
                                 "within_1mm_of_exact": int((diff <= 1e-3).sum()),
                                 "max_difference_m": float(diff.max()) if diff.size else float("nan")}
+    # the other walks' visits (the same hits: the levels only change what is skipped)
+    for level, name in ((0, "cells_only"), (3, "three_levels")):
+        _, count = fl.trace(grid, s, l, 0, coef, cen, level=level)
+        out[f"{name}_visits_per_ray"] = {"cells": count[0], "blocks": count[1], "superblocks": count[2]}
     rug = None
     if rugged_available()[0]:
         rug = RuggedDSM(h, grid["lat_first"], grid["lon_first"], grid["dlat"], grid["dlon"], a=grid["a"], f=grid["f"])
@@ -161,6 +174,9 @@ def run(scene: str, n: int, nrays: int, rounds: int, workdir: Path) -> dict:
         "walk_cubic": lambda: fl.trace(grid, s, l, 1, coef, cen),
         "setup_heikkinen": lambda: fl.trace(grid, s, l, 0, coef, cen, level=2),
         "setup_cubic": lambda: fl.trace(grid, s, l, 1, coef, cen, level=2),
+        "cells_only_heikkinen": lambda: fl.trace(grid, s, l, 0, coef, cen, level=0),
+        "three_levels_heikkinen": lambda: fl.trace(grid, s, l, 0, coef, cen, level=3),
+        "three_levels_cubic": lambda: fl.trace(grid, s, l, 1, coef, cen, level=3),
     }
     per = {k: [] for k in calls}
     per["rugged"] = []

@@ -99,6 +99,12 @@ def test_the_two_conversions_give_the_same_walk(scene):
     assert both.sum() == np.isfinite(a).sum() == np.isfinite(b).sum()
     # a 3e-9-cell map error moves a root by far less than the track's own error
     assert np.mean(np.abs(a - b)[both] < 1e-4) >= 0.99
+    # the levels change what is skipped, not what is hit: cells alone and three levels find the
+    # two-level walk's hits (a block's max bounds its cells', a superblock's its blocks')
+    for level in (0, 3):
+        e, ce = scene["probe"].trace(scene["grid"], scene["s"], scene["l"], 0, scene["coef"], scene["cen"], level=level)
+        np.testing.assert_array_equal(e, a)
+    assert ce[2] > 0 and ce[1] < ca[1]                # three levels: superblocks visited, fewer blocks
     # the set-up alone (level 2) makes no hit
     c, cc = scene["probe"].trace(scene["grid"], scene["s"], scene["l"], 0, scene["coef"], scene["cen"], level=2)
     assert not np.isfinite(c).any() and cc[0] == 0 and cc[1] == 0

@@ -35,13 +35,15 @@ module cell_walk_bound
 
 contains
 
-   !> Cell maxima (max of each cell's four nodes) and block maxima (max over bsz x bsz cells).
-   !> h(0:nc-1, 0:nr-1) is a C-ordered (nr, nc) array: h(j, i) is row i, column j.
-   subroutine walk_prepare(nr, nc, h, bsz, nbr, nbc, cmax, bmax) bind(c, name="walk_prepare")
-      integer(c_int), value, intent(in) :: nr, nc, bsz, nbr, nbc
+   !> Cell maxima (max of each cell's four nodes), block maxima (max over bsz x bsz cells) and
+   !> superblock maxima (over 4 x 4 blocks). h(0:nc-1, 0:nr-1) is a C-ordered (nr, nc) array:
+   !> h(j, i) is row i, column j.
+   subroutine walk_prepare(nr, nc, h, bsz, nbr, nbc, cmax, bmax, nsr, nsc, smax) bind(c, name="walk_prepare")
+      integer(c_int), value, intent(in) :: nr, nc, bsz, nbr, nbc, nsr, nsc
       real(c_double), intent(in) :: h(0:nc - 1, 0:nr - 1)
       real(c_float), intent(out) :: cmax(0:nc - 2, 0:nr - 2)
       real(c_float), intent(out) :: bmax(0:nbc - 1, 0:nbr - 1)
+      real(c_float), intent(out) :: smax(0:nsc - 1, 0:nsr - 1)
       integer :: i, j
       do i = 0, nr - 2
          do j = 0, nc - 2
@@ -54,22 +56,30 @@ contains
             bmax(j / bsz, i / bsz) = max(bmax(j / bsz, i / bsz), cmax(j, i))
          end do
       end do
+      smax = -huge(1.0_c_float)
+      do i = 0, nbr - 1
+         do j = 0, nbc - 1
+            smax(j / 4, i / 4) = max(smax(j / 4, i / 4), bmax(j, i))
+         end do
+      end do
    end subroutine walk_prepare
 
    !> Trace nray rays (s, l: (nray, 3) C-ordered, metres, body-fixed); dist(k) is the probe's
    !> distance to its hit or -1. grid = (lat_first, lon_first, dlat, dlon, a, f, hmin, hmax);
    !> coef(20, 3) and cen(3) the cubic map (conv = 1); level 0 walks cells only, 1 blocks
-   !> then cells. ncount returns (cells visited, blocks visited) summed over the rays.
-   subroutine walk_trace(nr, nc, h, cmax, bsz, nbr, nbc, bmax, grid, conv, coef, cen, level, nray, s, l, &
-                          dist, ncount) bind(c, name="walk_trace")
-      integer(c_int), value, intent(in) :: nr, nc, bsz, nbr, nbc, conv, level, nray
+   !> then cells, 3 superblocks, blocks, cells; 2 only sets up (no walk). ncount returns
+   !> (cells, blocks, superblocks visited) summed over the rays.
+   subroutine walk_trace(nr, nc, h, cmax, bsz, nbr, nbc, bmax, nsr, nsc, smax, grid, conv, coef, cen, level, &
+                         nray, s, l, dist, ncount) bind(c, name="walk_trace")
+      integer(c_int), value, intent(in) :: nr, nc, bsz, nbr, nbc, nsr, nsc, conv, level, nray
       real(c_double), intent(in) :: h(0:nc - 1, 0:nr - 1)
       real(c_float), intent(in) :: cmax(0:nc - 2, 0:nr - 2)
       real(c_float), intent(in) :: bmax(0:nbc - 1, 0:nbr - 1)
+      real(c_float), intent(in) :: smax(0:nsc - 1, 0:nsr - 1)
       real(c_double), intent(in) :: grid(8), coef(20, 3), cen(3)
       real(c_double), intent(in) :: s(3, nray), l(3, nray)
       real(c_double), intent(out) :: dist(nray)
-      real(c_double), intent(out) :: ncount(2)
+      real(c_double), intent(out) :: ncount(3)
       integer :: k
       real(dp) :: u(3), ra, rb, p0(3), p1(3), g0(3), g1(3), tr
       logical :: ok
@@ -84,11 +94,7 @@ contains
          call to_grid(p0, g0)
          call to_grid(p1, g1)
          if (level == 2) cycle                          ! set-up only: the conversions' cost
-         if (level == 1) then
-            ok = walk(.true., 0.0_dp, 1.0_dp, tr)
-         else
-            ok = walk(.false., 0.0_dp, 1.0_dp, tr)
-         end if
+         ok = walk(min(level, 2), 0.0_dp, 1.0_dp, tr)
          if (ok) dist(k) = ra + tr * (rb - ra)
       end do
 
@@ -118,9 +124,10 @@ contains
          end if
       end subroutine to_grid
 
-      !> Walk the straight track g0 -> g1 for t in [ta, tb]: blocks (blocks = .true.) or cells.
-      recursive logical function walk(blocks, ta, tb, tr) result(hit)
-         logical, intent(in) :: blocks
+      !> Walk the straight track g0 -> g1 for t in [ta, tb]: superblocks (lv = 2), blocks (1)
+      !> or cells (0); a unit not cleared is walked one level down.
+      recursive logical function walk(lv, ta, tb, tr) result(hit)
+         integer, intent(in) :: lv
          real(dp), intent(in) :: ta, tb
          real(dp), intent(out) :: tr
          real(dp) :: di, dj, dh, ti, tj, dti, dtj, t, tn, sz
@@ -128,14 +135,20 @@ contains
          real(c_float) :: m
          hit = .false.
          tr = 0
-         sz = 1
-         nbi = nr - 1
-         nbj = nc - 1
-         if (blocks) then
+         select case (lv)
+         case (2)
+            sz = 4 * bsz
+            nbi = nsr
+            nbj = nsc
+         case (1)
             sz = bsz
             nbi = nbr
             nbj = nbc
-         end if
+         case default
+            sz = 1
+            nbi = nr - 1
+            nbj = nc - 1
+         end select
          di = g1(1) - g0(1)
          dj = g1(2) - g0(2)
          dh = g1(3) - g0(3)
@@ -158,16 +171,20 @@ contains
             tn = min(ti, tj, tb)
             if (ci < 0 .or. cj < 0 .or. ci >= nbi .or. cj >= nbj) then
                m = -huge(1.0_c_float)                    ! outside the grid: no surface
-            else if (blocks) then
-               ncount(2) = ncount(2) + 1
-               m = bmax(cj, ci)
             else
-               ncount(1) = ncount(1) + 1
-               m = cmax(cj, ci)
+               ncount(lv + 1) = ncount(lv + 1) + 1
+               select case (lv)
+               case (2)
+                  m = smax(cj, ci)
+               case (1)
+                  m = bmax(cj, ci)
+               case default
+                  m = cmax(cj, ci)
+               end select
             end if
             if (m >= g0(3) + dh * tn) then               ! a descending track is lowest at its exit
-               if (blocks) then
-                  hit = walk(.false., t, tn, tr)
+               if (lv > 0) then
+                  hit = walk(lv - 1, t, tn, tr)
                else
                   hit = cell_root(ci, cj, t, tn, tr)
                end if
