@@ -93,8 +93,10 @@ class CellWalk:
         self.lib.walk_prepare.restype = None
         self.lib.walk_trace.restype = None
 
-    def prepare(self, heights: np.ndarray) -> None:
-        self.h = np.ascontiguousarray(heights, dtype=np.float64)
+    def prepare(self, grid: dict, coef, cen) -> None:
+        """Everything that depends on the grid alone (its maxima, H_min and H_max, the cubic map):
+        once, outside any timed call."""
+        self.h = np.ascontiguousarray(grid["heights"], dtype=np.float64)
         nr, nc = self.h.shape
         self.nbr, self.nbc = -(-(nr - 1) // BLOCK), -(-(nc - 1) // BLOCK)
         self.nsr, self.nsc = -(-self.nbr // 4), -(-self.nbc // 4)
@@ -104,24 +106,37 @@ class CellWalk:
         i, p = ctypes.c_int, lambda a: a.ctypes.data_as(ctypes.c_void_p)
         self.lib.walk_prepare(i(nr), i(nc), p(self.h), i(BLOCK), i(self.nbr), i(self.nbc), p(self.cmax), p(self.bmax),
                               i(self.nsr), i(self.nsc), p(self.smax))
+        self.g = np.array([grid["lat_first"], grid["lon_first"], grid["dlat"], grid["dlon"], grid["a"], grid["f"],
+                           float(self.h.min()), float(self.h.max())])
+        self.coef_f = np.ascontiguousarray(np.asarray(coef, np.float64).T)    # Fortran coef(20, 3)
+        self.cen = np.ascontiguousarray(cen, np.float64)
+        self._grid_args = (i(nr), i(nc), p(self.h), p(self.cmax), i(BLOCK), i(self.nbr), i(self.nbc), p(self.bmax),
+                           i(self.nsr), i(self.nsc), p(self.smax), p(self.g))
+        self._grid_keep = (self.h, self.cmax, self.bmax, self.smax, self.g)   # what _grid_args points into
 
-    def trace(self, grid: dict, s, l, conv: int, coef, cen, level: int = 1):
-        """(distances, NaN where no hit; (cells, blocks, superblocks) visited per ray). level 0: cells
-        only; 1: 8 x 8-cell blocks, then cells; 3: 32 x 32-cell superblocks, blocks, cells; 2: the
-        set-up alone (crossings and conversions, no walk)."""
-        nr, nc = self.h.shape
-        g = np.array([grid["lat_first"], grid["lon_first"], grid["dlat"], grid["dlon"], grid["a"], grid["f"],
-                      float(self.h.min()), float(self.h.max())])
+    def bind(self, s, l):
+        """A call on these rays: call(conv, level) runs the probe and returns (dist, counts) in arrays it
+        reuses. Only the Fortran call is left for the timer (no O(grid) or O(rays) work in Python)."""
         s = np.ascontiguousarray(s, np.float64)
         l = np.ascontiguousarray(l, np.float64)
-        coef_f = np.ascontiguousarray(np.asarray(coef, np.float64).T)    # Fortran coef(20, 3)
-        cen = np.ascontiguousarray(cen, np.float64)
         dist = np.empty(len(s))
         count = np.zeros(3)
         i, p = ctypes.c_int, lambda a: a.ctypes.data_as(ctypes.c_void_p)
-        self.lib.walk_trace(i(nr), i(nc), p(self.h), p(self.cmax), i(BLOCK), i(self.nbr), i(self.nbc), p(self.bmax),
-                            i(self.nsr), i(self.nsc), p(self.smax), p(g), i(conv), p(coef_f), p(cen), i(level),
-                            i(len(s)), p(s), p(l), p(dist), p(count))
+        tail = (i(len(s)), p(s), p(l), p(dist), p(count))
+        keep = (s, l)                                           # alive while the call is
+
+        def call(conv: int, level: int = 1):
+            self.lib.walk_trace(*self._grid_args, i(conv), p(self.coef_f), p(self.cen), i(level), *tail)
+            return dist, count
+
+        call.keep = keep
+        return call
+
+    def trace(self, s, l, conv: int, level: int = 1):
+        """(distances, NaN where no hit; (cells, blocks, superblocks) visited per ray). level 0: cells
+        only; 1: 8 x 8-cell blocks, then cells; 3: 32 x 32-cell superblocks, blocks, cells; 2: the
+        set-up alone (crossings and conversions, no walk)."""
+        dist, count = self.bind(s, l)(conv, level)
         return np.where(dist >= 0, dist, np.nan), count / len(s)
 
 
@@ -139,13 +154,13 @@ def run(scene: str, n: int, nrays: int, rounds: int, workdir: Path) -> dict:
     dsm.pyramid()
     coef, cen, fit_err = fit_cubic(grid, float(h.min()), float(h.max()))
     fl = CellWalk(workdir)
-    fl.prepare(h)
+    fl.prepare(grid, coef, cen)
     exact = pi.intersect(dsm, s, l, method="exact", threads=1)
     ref = np.where(exact.hit, exact.distance, np.nan)
     out = {"scene": scene, "n": n, "rays": len(s), "block": BLOCK,
            "cubic_fit_max_error": {"rows": fit_err[0], "columns": fit_err[1], "metres": fit_err[2]}}
     for conv, name in ((0, "heikkinen"), (1, "cubic")):
-        d, count = fl.trace(grid, s, l, conv, coef, cen)
+        d, count = fl.trace(s, l, conv)
         both = np.isfinite(d) & np.isfinite(ref)
         diff = np.abs(d - ref)[both]
         out[f"walk_{name}"] = {"cells_per_ray": count[0], "blocks_per_ray": count[1],
@@ -154,12 +169,14 @@ def run(scene: str, n: int, nrays: int, rounds: int, workdir: Path) -> dict:
                                 "max_difference_m": float(diff.max()) if diff.size else float("nan")}
     # the other walks' visits (the same hits: the levels only change what is skipped)
     for level, name in ((0, "cells_only"), (3, "three_levels")):
-        _, count = fl.trace(grid, s, l, 0, coef, cen, level=level)
+        _, count = fl.trace(s, l, 0, level=level)
         out[f"{name}_visits_per_ray"] = {"cells": count[0], "blocks": count[1], "superblocks": count[2]}
     rug = None
     if rugged_available()[0]:
         rug = RuggedDSM(h, grid["lat_first"], grid["lon_first"], grid["dlat"], grid["dlon"], a=grid["a"], f=grid["f"])
         warm_rugged(rug, s, l)
+
+    probe = fl.bind(s, l)                   # the probe's calls time its Fortran alone
 
     def timed(fn):
         fn()
@@ -170,13 +187,13 @@ def run(scene: str, n: int, nrays: int, rounds: int, workdir: Path) -> dict:
     calls = {
         "exact": lambda: pi.intersect(dsm, s, l, method="exact", threads=1),
         "following": lambda: pi.intersect(dsm, s, l, method="following", threads=1),
-        "walk_heikkinen": lambda: fl.trace(grid, s, l, 0, coef, cen),
-        "walk_cubic": lambda: fl.trace(grid, s, l, 1, coef, cen),
-        "setup_heikkinen": lambda: fl.trace(grid, s, l, 0, coef, cen, level=2),
-        "setup_cubic": lambda: fl.trace(grid, s, l, 1, coef, cen, level=2),
-        "cells_only_heikkinen": lambda: fl.trace(grid, s, l, 0, coef, cen, level=0),
-        "three_levels_heikkinen": lambda: fl.trace(grid, s, l, 0, coef, cen, level=3),
-        "three_levels_cubic": lambda: fl.trace(grid, s, l, 1, coef, cen, level=3),
+        "walk_heikkinen": lambda: probe(0, 1),
+        "walk_cubic": lambda: probe(1, 1),
+        "setup_heikkinen": lambda: probe(0, 2),
+        "setup_cubic": lambda: probe(1, 2),
+        "cells_only_heikkinen": lambda: probe(0, 0),
+        "three_levels_heikkinen": lambda: probe(0, 3),
+        "three_levels_cubic": lambda: probe(1, 3),
     }
     per = {k: [] for k in calls}
     per["rugged"] = []

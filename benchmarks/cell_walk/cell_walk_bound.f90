@@ -33,10 +33,18 @@ module cell_walk_bound
    integer, parameter :: dp = c_double
    real(dp), parameter :: rad2deg = 57.295779513082320876798_dp
 
+   interface
+      !> C's cube root (Fortran has none; x**(1/3) calls pow, ~2x the time)
+      pure real(c_double) function cbrt(x) bind(c, name="cbrt")
+         import :: c_double
+         real(c_double), value, intent(in) :: x
+      end function cbrt
+   end interface
+
 contains
 
-   !> Cell maxima (max of each cell's four nodes), block maxima (max over bsz x bsz cells) and
-   !> superblock maxima (over 4 x 4 blocks). h(0:nc-1, 0:nr-1) is a C-ordered (nr, nc) array:
+   !> Cell maxima (max of each cell's four nodes, rounded up to single precision), block maxima
+   !> (max over bsz x bsz cells) and superblock maxima (over 4 x 4 blocks). h(0:nc-1, 0:nr-1) is a C-ordered (nr, nc) array:
    !> h(j, i) is row i, column j.
    subroutine walk_prepare(nr, nc, h, bsz, nbr, nbc, cmax, bmax, nsr, nsc, smax) bind(c, name="walk_prepare")
       integer(c_int), value, intent(in) :: nr, nc, bsz, nbr, nbc, nsr, nsc
@@ -45,9 +53,12 @@ contains
       real(c_float), intent(out) :: bmax(0:nbc - 1, 0:nbr - 1)
       real(c_float), intent(out) :: smax(0:nsc - 1, 0:nsr - 1)
       integer :: i, j
+      real(dp) :: m
       do i = 0, nr - 2
          do j = 0, nc - 2
-            cmax(j, i) = real(max(h(j, i), h(j + 1, i), h(j, i + 1), h(j + 1, i + 1)), c_float)
+            m = max(h(j, i), h(j + 1, i), h(j, i + 1), h(j + 1, i + 1))
+            cmax(j, i) = real(m, c_float)
+            if (real(cmax(j, i), dp) < m) cmax(j, i) = nearest(cmax(j, i), 1.0_c_float)
          end do
       end do
       bmax = -huge(1.0_c_float)
@@ -94,7 +105,7 @@ contains
          call to_grid(p0, g0)
          call to_grid(p1, g1)
          if (level == 2) cycle                          ! set-up only: the conversions' cost
-         ok = walk(min(level, 2), 0.0_dp, 1.0_dp, tr)
+         ok = walk(min(level, 2), 0.0_dp, 1.0_dp, -huge(1), huge(1), -huge(1), huge(1), tr)
          if (ok) dist(k) = ra + tr * (rb - ra)
       end do
 
@@ -125,9 +136,10 @@ contains
       end subroutine to_grid
 
       !> Walk the straight track g0 -> g1 for t in [ta, tb]: superblocks (lv = 2), blocks (1)
-      !> or cells (0); a unit not cleared is walked one level down.
-      recursive logical function walk(lv, ta, tb, tr) result(hit)
-         integer, intent(in) :: lv
+      !> or cells (0); a unit not cleared is walked one level down, within its index range
+      !> [i0, i1] x [j0, j1] at that level (a track entering it on an edge starts inside).
+      recursive logical function walk(lv, ta, tb, i0, i1, j0, j1, tr) result(hit)
+         integer, intent(in) :: lv, i0, i1, j0, j1
          real(dp), intent(in) :: ta, tb
          real(dp), intent(out) :: tr
          real(dp) :: di, dj, dh, ti, tj, dti, dtj, t, tn, sz
@@ -152,8 +164,8 @@ contains
          di = g1(1) - g0(1)
          dj = g1(2) - g0(2)
          dh = g1(3) - g0(3)
-         ci = floor((g0(1) + di * ta) / sz)
-         cj = floor((g0(2) + dj * ta) / sz)
+         ci = min(max(floor((g0(1) + di * ta) / sz), i0), i1)
+         cj = min(max(floor((g0(2) + dj * ta) / sz), j0), j1)
          si = merge(1, -1, di > 0)
          sj = merge(1, -1, dj > 0)
          dti = huge(1.0_dp)
@@ -183,8 +195,10 @@ contains
                end select
             end if
             if (m >= g0(3) + dh * tn) then               ! a descending track is lowest at its exit
-               if (lv > 0) then
-                  hit = walk(lv - 1, t, tn, tr)
+               if (lv == 2) then
+                  hit = walk(1, t, tn, 4 * ci, 4 * ci + 3, 4 * cj, 4 * cj + 3, tr)
+               else if (lv == 1) then
+                  hit = walk(0, t, tn, bsz * ci, bsz * ci + bsz - 1, bsz * cj, bsz * cj + bsz - 1, tr)
                else
                   hit = cell_root(ci, cj, t, tn, tr)
                end if
@@ -284,17 +298,17 @@ contains
       b = a * (1 - f)
       e2 = f * (2 - f)
       ep2 = (a * a - b * b) / (b * b)
-      r = hypot(p(1), p(2))
+      r = sqrt(p(1)**2 + p(2)**2)
       ee = a * a - b * b
       ff = 54 * b * b * p(3)**2
       g = r * r + (1 - e2) * p(3)**2 - e2 * ee
       c = e2 * e2 * ff * r * r / g**3
-      sc = (1 + c + sqrt(c * c + 2 * c))**(1.0_dp / 3)
+      sc = cbrt(1 + c + sqrt(c * c + 2 * c))
       pp = ff / (3 * (sc + 1 / sc + 1)**2 * g * g)
       q = sqrt(1 + 2 * e2 * e2 * pp)
       r0 = -(pp * e2 * r) / (1 + q) + sqrt(0.5_dp * a * a * (1 + 1 / q) - pp * (1 - e2) * p(3)**2 / (q * (1 + q)) &
                                            - 0.5_dp * pp * r * r)
-      uu = hypot(r - e2 * r0, p(3))
+      uu = sqrt((r - e2 * r0)**2 + p(3)**2)
       vv = sqrt((r - e2 * r0)**2 + (1 - e2) * p(3)**2)
       z0 = b * b * p(3) / (a * vv)
       hh = uu * (1 - b * b / (a * vv))
