@@ -141,8 +141,9 @@ class CellWalk:
 
 
 def run(scene: str, n: int, nrays: int, rounds: int, workdir: Path) -> dict:
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    sys.path.insert(0, str(REPO / "tests"))
+    for d in (REPO / "benchmarks", REPO / "tests"):           # geodetic.py's scenes, the Rugged bridge
+        if str(d) not in sys.path:
+            sys.path.insert(0, str(d))
     import planet_intersect as pi
     from geodetic import make_scene, warm_rugged
     from references.rugged.bridge import RuggedDSM, rugged_available
@@ -249,6 +250,7 @@ def plot(results: list[dict], path: Path) -> None:
     fig.suptitle("What a cell walk could cost: the unsound probe (no margins, straight track) beside the methods",
                  fontsize=10)
     fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -264,8 +266,9 @@ def main(argv=None) -> int:
                     help="also draw microseconds per ray to this PNG (docs/figures/cell_walk_bound.png)")
     ap.add_argument("--plot-only", action="store_true", help="draw --figure from the --out JSON without measuring")
     a = ap.parse_args(argv)
-    if a.n < 64 or a.rays < 100 or a.rounds < 1:
-        ap.error("--n must be at least 64, --rays at least 100, --rounds at least 1")
+    if not (64 <= a.n <= 8192 and 100 <= a.rays <= 1_000_000 and 1 <= a.rounds <= 100):
+        ap.error(f"--n must be 64 to 8192 (got {a.n}), --rays 100 to 1,000,000 (got {a.rays}), "
+                 f"--rounds 1 to 100 (got {a.rounds})")
     if a.plot_only:
         if a.figure is None:
             ap.error("--plot-only needs --figure")
