@@ -8,6 +8,7 @@
     planet-intersect examples buildings [--zenith Z] [--size N] [--stride K] [--out DIR]
     planet-intersect import-mola OUT (--radius IMG | --topography IMG --areoid IMG) [--overwrite]
     planet-intersect import-pds LABEL OUT [--heights-above KM] [--overwrite]
+    planet-intersect import-shape-table TABLE OUT [--ppd N] [--longitude west|east] [--re KM] [--overwrite]
     planet-intersect fetch-mola DEST [--product megr90n000cb|megr90n000eb]
     planet-intersect footprint (--states CSV | --kernels K... --times FILE) [--dem HDR | --mola IMG] [--zeta Z]
     planet-intersect simulate [--dsm DSM --ortho ORTHO (--oblique Z,AZ | --orbit ... | --geometry NPZ)] [--out DIR]
@@ -451,6 +452,18 @@ def _import_pds(args) -> int:
 
     try:
         hdr = import_pds(args.label, args.out, heights_above=args.heights_above, overwrite=args.overwrite)
+    except FileExistsError as exc:                 # (the library's advice names its Python argument)
+        raise CLIError(str(exc).replace("pass overwrite=True", "give --overwrite")) from None
+    print(f"wrote {hdr} and {hdr.with_suffix('.dem')}")
+    return 0
+
+
+def _import_shape_table(args) -> int:
+    from .shape_table import import_shape_table
+
+    try:
+        hdr = import_shape_table(args.table, args.out, ppd=args.ppd, longitude=args.longitude, re=args.re,
+                                 overwrite=args.overwrite)
     except FileExistsError as exc:                 # (the library's advice names its Python argument)
         raise CLIError(str(exc).replace("pass overwrite=True", "give --overwrite")) from None
     print(f"wrote {hdr} and {hdr.with_suffix('.dem')}")
@@ -1059,6 +1072,18 @@ def _parser() -> argparse.ArgumentParser:
                    help="for a grid of heights: the radius (km) of the sphere they are above")
     m.add_argument("--overwrite", action="store_true", help="replace existing NAME.hdr/.dem")
     m.set_defaults(func=_import_pds)
+    m = sub.add_parser("import-shape-table", help="convert a small-body shape table (latitude, longitude, radius "
+                                                  "at grid nodes; P. C. Thomas' m1phobos.tab, ...) to a .hdr/.dem DEM")
+    m.add_argument("table", help="the text table: latitude, longitude (deg), radius (km) at the nodes of a global grid")
+    m.add_argument("out", help="output NAME (writes NAME.hdr and NAME.dem)")
+    m.add_argument("--ppd", type=int, default=None, help="DEM pixels per degree (default: as fine as the table, >= 1)")
+    m.add_argument("--longitude", choices=("west", "east"), default="west",
+                   help="which way the table's longitudes run (default west, Thomas' convention; docs/paper-notes.md "
+                        "note 23)")
+    m.add_argument("--re", type=float, default=None, metavar="KM",
+                   help="a reference sphere's radius for altitudes (default none: an irregular body)")
+    m.add_argument("--overwrite", action="store_true", help="replace existing NAME.hdr/.dem")
+    m.set_defaults(func=_import_shape_table)
     f = sub.add_parser("fetch-mola", help="download a MEGDR radius grid from the PDS Geosciences Node and import it")
     f.add_argument("dest", help="folder for the download and the DEM")
     f.add_argument("--product", default="megr90n000cb", choices=("megr90n000cb", "megr90n000eb"),
