@@ -54,19 +54,20 @@ def test_phobos_table_reproduces_its_provenance_figures():
 
 
 @need_phobos
-@pytest.mark.parametrize("longitude", ["west", "east"])
-def test_phobos_dem_is_the_bilinear_of_the_tables_nodes(longitude):
+@pytest.mark.parametrize("longitude,ppd", [("west", None), ("east", None), ("west", 2), ("east", 3)])
+def test_phobos_dem_is_the_bilinear_of_the_tables_nodes(longitude, ppd):
     from scipy.interpolate import RegularGridInterpolator
 
     lats, lons, r = read_shape_table(PHOBOS)
     interp = RegularGridInterpolator((lats, lons), r)              # the raw nodes, 360 column as stored
-    dem = shape_table_dem(PHOBOS, longitude=longitude)
-    assert dem.ppd == 1 and (dem.re, dem.f) == (1.0, 0.0)           # no spheroid: an irregular body
-    lat_c = -89.5 + np.arange(180)
-    lon_e = 0.5 + np.arange(360)
+    dem = shape_table_dem(PHOBOS, longitude=longitude, ppd=ppd)
+    n = ppd or 1
+    assert dem.ppd == n and (dem.re, dem.f) == (1.0, 0.0)           # no spheroid: an irregular body
+    lat_c = -90.0 + (np.arange(180 * n) + 0.5) / n
+    lon_e = (np.arange(360 * n) + 0.5) / n
     lon_t = (360.0 - lon_e) % 360.0 if longitude == "west" else lon_e
     la, lo = np.meshgrid(lat_c, lon_t, indexing="ij")
-    want = interp(np.c_[la.ravel(), lo.ravel()]).reshape(180, 360)
+    want = interp(np.c_[la.ravel(), lo.ravel()]).reshape(180 * n, 360 * n)
     got = np.asarray(dem.radii, dtype=float)
     assert dem.rmax == pytest.approx(got.max(), rel=1e-7)            # resampled: below the nodes' 13.9822
     diff = np.abs(got - want)
@@ -76,7 +77,7 @@ def test_phobos_dem_is_the_bilinear_of_the_tables_nodes(longitude):
     assert diff[near0].max() <= 0.0116
     assert diff[~near0].max() <= 2e-6                                # float32 of ~13 km
     # the volume, as PROVENANCE's quadrature of the raw table (about 5,750 km^3, 11.12 km)
-    cell = np.radians(1.0) ** 2 * np.cos(np.radians(lat_c))[:, None]
+    cell = np.radians(1.0 / n) ** 2 * np.cos(np.radians(lat_c))[:, None]
     vol = float((got ** 3 / 3.0 * cell).sum())
     assert vol == pytest.approx(5750, rel=0.01)
     assert (3 * vol / (4 * np.pi)) ** (1 / 3) == pytest.approx(11.12, abs=0.02)
@@ -159,6 +160,9 @@ def test_tables_without_the_360_column_and_finer_dems(tmp_path):
     t = write_table(tmp_path / "a.tab", lambda la, lo: 10.0 + 0.01 * la, step=5.0, with_360=False)
     dem = shape_table_dem(t, ppd=4, longitude="east", re=10.0)
     assert dem.ppd == 4 and dem.re == 10.0
+    # a half-degree table makes 2 pixels a degree by default (pixels no larger than its step)
+    half = write_table(tmp_path / "h.tab", lambda la, lo: 10.0, step=0.5)
+    assert shape_table_dem(half).ppd == 2
     # linear in latitude: the bilinear is exact at every pixel centre
     lat_c = -90.0 + (np.arange(720) + 0.5) / 4
     np.testing.assert_allclose(np.asarray(dem.radii)[:, 7], 10.0 + 0.01 * lat_c, atol=2e-6)
@@ -198,9 +202,21 @@ def test_other_refusals(tmp_path):
         read_shape_table(pole)
     good = write_table(tmp_path / "g.tab", bump)
     for kw, match in [(dict(ppd=0), "ppd"), (dict(ppd=MAX_PPD + 1), "ppd"), (dict(ppd=1.5), "ppd"),
-                      (dict(ppd=True), "ppd"), (dict(longitude="up"), "longitude"), (dict(f=0.1), "needs re")]:
+                      (dict(ppd=True), "ppd"), (dict(longitude="up"), "longitude"), (dict(f=0.1), "needs re"),
+                      (dict(re=-1.0), "re must"), (dict(re=float("nan")), "re must"), (dict(re=1.0), "placeholder"),
+                      (dict(re=1000.0), "factor 10")]:
         with pytest.raises(ValueError, match=match):
             shape_table_dem(good, **kw)
+
+
+def test_a_seam_wider_than_one_percent_is_refused(tmp_path):
+    # the 360 column repeats the 0 column; m1phobos's differ by <= 0.23 %, here by 100 %
+    lines = write_table(tmp_path / "s.tab", lambda la, lo: 10.0).read_text().splitlines()
+    k = next(i for i, ln in enumerate(lines) if ln.split()[:2] == ["30.0000", "360.0000"])
+    lines[k] = "  30.0000  360.0000   20.0000"
+    (tmp_path / "s.tab").write_text("\n".join(lines) + "\n")
+    with pytest.raises(ShapeTableError, match="360 and 0 longitude columns differ"):
+        read_shape_table(tmp_path / "s.tab")
 
 
 def test_import_writes_a_dem_and_never_overwrites_silently(tmp_path, capsys):
@@ -221,6 +237,13 @@ def test_import_writes_a_dem_and_never_overwrites_silently(tmp_path, capsys):
     assert "nope.tab" in capsys.readouterr().err
     hdr = import_shape_table(t, tmp_path / "lib", re=10.0)
     assert pi.DEM.read(hdr).re == 10.0
+    # the input is never written, --overwrite or not (a review: a table named X.dem became the DEM)
+    victim = tmp_path / "t2.dem"
+    victim.write_bytes(t.read_bytes())
+    assert main(["import-shape-table", str(victim), str(tmp_path / "t2"), "--overwrite"]) == 2
+    assert "is the input file" in capsys.readouterr().err and victim.read_bytes() == t.read_bytes()
+    assert main(["import-shape-table", str(t), str(tmp_path / "no" / "such" / "out")]) == 2
+    assert "does not exist" in capsys.readouterr().err
 
 
 def test_mangled_tables_give_a_dem_or_a_named_refusal(tmp_path):

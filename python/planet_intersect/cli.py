@@ -9,6 +9,7 @@
     planet-intersect import-mola OUT (--radius IMG | --topography IMG --areoid IMG) [--overwrite]
     planet-intersect import-pds LABEL OUT [--heights-above KM] [--overwrite]
     planet-intersect import-shape-table TABLE OUT [--ppd N] [--longitude west|east] [--re KM] [--overwrite]
+    planet-intersect import-shadr SHA OUT [--ppd N] [--degree N] [--overwrite]
     planet-intersect fetch-mola DEST [--product megr90n000cb|megr90n000eb]
     planet-intersect footprint (--states CSV | --kernels K... --times FILE) [--dem HDR | --mola IMG] [--zeta Z]
     planet-intersect simulate [--dsm DSM --ortho ORTHO (--oblique Z,AZ | --orbit ... | --geometry NPZ)] [--out DIR]
@@ -464,6 +465,17 @@ def _import_shape_table(args) -> int:
     try:
         hdr = import_shape_table(args.table, args.out, ppd=args.ppd, longitude=args.longitude, re=args.re,
                                  overwrite=args.overwrite)
+    except FileExistsError as exc:                 # (the library's advice names its Python argument)
+        raise CLIError(str(exc).replace("pass overwrite=True", "give --overwrite")) from None
+    print(f"wrote {hdr} and {hdr.with_suffix('.dem')}")
+    return 0
+
+
+def _import_shadr(args) -> int:
+    from .shadr import import_shadr
+
+    try:
+        hdr = import_shadr(args.sha, args.out, ppd=args.ppd, degree=args.degree, overwrite=args.overwrite)
     except FileExistsError as exc:                 # (the library's advice names its Python argument)
         raise CLIError(str(exc).replace("pass overwrite=True", "give --overwrite")) from None
     print(f"wrote {hdr} and {hdr.with_suffix('.dem')}")
@@ -1078,12 +1090,20 @@ def _parser() -> argparse.ArgumentParser:
     m.add_argument("out", help="output NAME (writes NAME.hdr and NAME.dem)")
     m.add_argument("--ppd", type=int, default=None, help="DEM pixels per degree (default: as fine as the table, >= 1)")
     m.add_argument("--longitude", choices=("west", "east"), default="west",
-                   help="which way the table's longitudes run (default west, Thomas' convention; docs/paper-notes.md "
+                   help="which way the table's longitudes run (default west: the shape's evidence; docs/paper-notes.md "
                         "note 23)")
     m.add_argument("--re", type=float, default=None, metavar="KM",
                    help="a reference sphere's radius for altitudes (default none: an irregular body)")
     m.add_argument("--overwrite", action="store_true", help="replace existing NAME.hdr/.dem")
     m.set_defaults(func=_import_shape_table)
+    m = sub.add_parser("import-shadr", help="evaluate a PDS SHADR spherical-harmonic shape model (MOLA's GTM090AA, "
+                                            "...) on a global grid as a .hdr/.dem DEM (km)")
+    m.add_argument("sha", help="the SHADR ASCII coefficient file (header record, then n, m, C, S, ...)")
+    m.add_argument("out", help="output NAME (writes NAME.hdr and NAME.dem)")
+    m.add_argument("--ppd", type=int, default=1, help="DEM pixels per degree (default 1)")
+    m.add_argument("--degree", type=int, default=None, help="truncate the series at this degree (default: all)")
+    m.add_argument("--overwrite", action="store_true", help="replace existing NAME.hdr/.dem")
+    m.set_defaults(func=_import_shadr)
     f = sub.add_parser("fetch-mola", help="download a MEGDR radius grid from the PDS Geosciences Node and import it")
     f.add_argument("dest", help="folder for the download and the DEM")
     f.add_argument("--product", default="megr90n000cb", choices=("megr90n000cb", "megr90n000eb"),

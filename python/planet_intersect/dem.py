@@ -529,15 +529,26 @@ class DEM:
 
     # output -------------------------------------------------------------------------
     def write(self, path: str | os.PathLike, dtype: str | None = None, byteorder: str = "little",
-              overwrite: bool = False) -> Path:
+              overwrite: bool = False, inputs=()) -> Path:
         """Write the file pair NAME.hdr + NAME.dem; return the ``.hdr`` path.
 
         ``dtype`` defaults to the array's (float32 or float64); ``float32`` with
         ``little`` byte order is what a reader knowing only Table 1 expects.
         Existing files are never replaced unless ``overwrite=True``, and a DEM
-        is never written over the files it was read from.
+        is never written over the files it was read from, nor over any of
+        ``inputs`` (the files an importer read it from), overwrite or not.
         """
         hdr, dem = dem_paths(path)
+        if not hdr.parent.is_dir():
+            raise FileNotFoundError(f"{path}: the folder {hdr.parent} does not exist")
+        for src in inputs:
+            for p in (hdr, dem):
+                try:
+                    same = p.exists() and os.path.samefile(p, src)
+                except OSError:
+                    same = False
+                if same:
+                    raise FileExistsError(f"{p} is the input file {src}: write the DEM elsewhere")
         if dtype is None:
             dtype = "float32" if self._radii.dtype.itemsize == 4 else "float64"
         if dtype not in _DTYPES:

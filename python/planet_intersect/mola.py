@@ -79,7 +79,8 @@ def import_mola(out: str | os.PathLike, radius=None, *, topography=None, areoid=
                 overwrite: bool = False) -> Path:
     """Convert MEGDR grids to a ``.hdr``/``.dem`` pair (float32 km); return the ``.hdr`` path."""
     dem = mola_dem(radius, topography=topography, areoid=areoid)
-    return dem.write(out, dtype="float32", overwrite=overwrite)
+    return dem.write(out, dtype="float32", overwrite=overwrite,
+                     inputs=[p for p in (radius, topography, areoid) if p is not None])
 
 
 def fetch_mola(dest: str | os.PathLike, product: str = "megr90n000cb", base_url: str = PDS_MEGDR_URL,

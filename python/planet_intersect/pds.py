@@ -563,4 +563,4 @@ def pds_dem(label: str | os.PathLike, *, heights_above: float | None = None, dty
 def import_pds(label: str | os.PathLike, out: str | os.PathLike, *, heights_above: float | None = None,
                overwrite: bool = False) -> Path:
     """Convert a PDS3 grid (see :func:`pds_dem`) to a ``.hdr``/``.dem`` pair (float32 km); return the ``.hdr``."""
-    return pds_dem(label, heights_above=heights_above).write(out, dtype="float32", overwrite=overwrite)
+    return pds_dem(label, heights_above=heights_above).write(out, dtype="float32", overwrite=overwrite, inputs=[label])
