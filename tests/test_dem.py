@@ -99,3 +99,23 @@ def test_legacy_flondiff_examples():
     g = reference._Grid(np.full((180, 360), 1.0), 1)
     assert g.south == 1.0
     assert np.mod(350 - 10, 360.0) == 340 and np.mod(10 - 350, 360.0) == 20
+
+
+def test_write_never_replaces_an_input_file_and_names_a_missing_folder(tmp_path):
+    # DEM.write(inputs=...) guards the importers (import-mola, import-pds, import-shape-table,
+    # import-shadr): a review made import-shape-table write its DEM over a table named X.dem
+    dem = pi.DEM.from_array(np.full((180, 360), 10.0, dtype=np.float32))
+    src = tmp_path / "grid.dem"
+    src.write_bytes(b"the input")
+    with pytest.raises(FileExistsError, match="is the input file"):
+        dem.write(tmp_path / "grid", overwrite=True, inputs=[src])
+    assert src.read_bytes() == b"the input"
+    hdr_src = tmp_path / "other.hdr"
+    hdr_src.write_text("x")
+    with pytest.raises(FileExistsError, match="is the input file"):
+        dem.write(tmp_path / "other", overwrite=True, inputs=[hdr_src])
+    assert hdr_src.read_text() == "x"
+    # an input elsewhere does not stop the write; a missing folder is named, not a .part file
+    assert dem.write(tmp_path / "fine", inputs=[src, tmp_path / "never_existed"]).is_file()
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        dem.write(tmp_path / "no" / "folder" / "x")
