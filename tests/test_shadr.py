@@ -225,3 +225,71 @@ def test_cli_import_never_overwrites_silently(tmp_path, capsys):
     assert main(["import-shadr", str(tmp_path / "none.sha"), str(tmp_path / "x")]) == 2
     assert "none.sha" in capsys.readouterr().err
     assert import_shadr(sha, tmp_path / "lib").is_file()
+
+
+def test_legendre_functions_stay_orthonormal_at_high_degree():
+    # the recursions' own identity, by Gauss-Legendre quadrature: (1/2) integral of Pbar_nm Pbar_n'm
+    # over sin(lat) is (2 - delta_m0) delta_nn'. Measured at the cap, degree 1,800, for orders 0 to
+    # 1,790: 7e-11 (docs/paper-notes.md note 24); here degree 400, every order
+    from planet_intersect.shadr import MAX_DEGREE
+
+    assert MAX_DEGREE <= 1900                       # where the sectorials' underflow starts to matter
+    N = 400
+    x, w = np.polynomial.legendre.leggauss(N + 20)
+    P = legendre_normalised(N, x)
+    worst = 0.0
+    for m in range(0, N + 1, 7):
+        V = P[m:, m, :]
+        G = (V * w) @ V.T
+        worst = max(worst, float(np.abs(G - 2 * (2 - (m == 0)) * np.eye(len(V))).max()))
+    assert worst < 1e-10
+
+
+def test_ppd_2_pixels_and_longitude_varying_terms(tmp_path):
+    # a model that varies with longitude, at 2 pixels a degree: the pixel centres' closed form
+    p = write_sha(tmp_path / "v.sha", {(0, 0): (3.4e6, 0.0), (1, 1): (2.0e3, -1.0e3)})
+    dem = shadr_dem(p, ppd=2)
+    lat = -90.0 + (np.arange(360) + 0.5) / 2
+    lon = (np.arange(720) + 0.5) / 2
+    phi, lam = np.radians(lat)[:, None], np.radians(lon)[None, :]
+    want = (3.4e6 + math.sqrt(3) * np.cos(phi) * (2.0e3 * np.cos(lam) - 1.0e3 * np.sin(lam))) / 1000.0
+    np.testing.assert_allclose(np.asarray(dem.radii, dtype=float), want, rtol=1e-7)
+
+
+def test_review_refusals(tmp_path):
+    base = write_sha(tmp_path / "b.sha", {(0, 0): (3.4e6, 0.0)})
+    lines = base.read_text().splitlines()
+    # an empty field is an error, not skipped (it shifted C into S's column)
+    lines_e = list(lines)
+    lines_e[1] = "0, 0, , 3.4E6, 0, 0"
+    (tmp_path / "e.sha").write_text("\n".join(lines_e) + "\n")
+    with pytest.raises(SHADRError, match="none empty"):
+        read_shadr(tmp_path / "e.sha")
+    # fields separated by spaces read as by commas
+    (tmp_path / "sp.sha").write_text("\n".join(ln.replace(",", " ") for ln in lines) + "\n")
+    assert read_shadr(tmp_path / "sp.sha")["C"][0, 0] == 3.4e6
+    # a rotated reference pole, a degree above the recursion's range, a device, a directory
+    lines_r = list(lines)
+    lines_r[0] = lines_r[0].rsplit(",", 2)[0] + ", 10.0, 0.0"
+    (tmp_path / "r.sha").write_text("\n".join(lines_r) + "\n")
+    with pytest.raises(SHADRError, match="rotated pole"):
+        read_shadr(tmp_path / "r.sha")
+    lines_d = list(lines)
+    lines_d[0] = lines_d[0].replace("   3,    3,", " 5000, 5000,")
+    (tmp_path / "d.sha").write_text("\n".join(lines_d) + "\n")
+    with pytest.raises(SHADRError, match="above 1800"):
+        read_shadr(tmp_path / "d.sha")
+    for special in ("/dev/null", str(tmp_path)):
+        with pytest.raises(SHADRError, match="not a regular file"):
+            read_shadr(special)
+    # the gravity field in ../shared/data (space-separated) is refused as a gravity field
+    grav = SHARED / "mars_mola_megdr_4ppd" / "gravity_input" / "GGM1025A.txt"
+    if grav.is_file():
+        with pytest.raises(SHADRError, match="gravity field"):
+            read_shadr(grav)
+    # the input is never written, overwrite or not
+    victim = tmp_path / "m.dem"
+    victim.write_bytes(base.read_bytes())
+    with pytest.raises(FileExistsError, match="is the input file"):
+        import_shadr(victim, tmp_path / "m", overwrite=True)
+    assert victim.read_bytes() == base.read_bytes()

@@ -13,6 +13,7 @@ import errno
 import math
 import os
 import re
+import secrets
 import stat
 import warnings
 from pathlib import Path
@@ -239,6 +240,7 @@ def _float32_up(x: np.ndarray) -> np.ndarray:
     low = f.astype(np.float64) < x
     f[low] = np.nextafter(f[low], np.float32(np.inf))
     return f
+
 
 
 class DEM:
@@ -572,8 +574,11 @@ class DEM:
                 raise ValueError(f"dtype='float32' cannot hold these radii ({lo:g} .. {hi:g}; float32 holds "
                                  f"{float(fi.tiny):g} .. {float(fi.max):g}): write float64")
         data = np.asarray(self._radii, dtype=np.dtype(dtype).newbyteorder(_BYTEORDERS[byteorder]))
-        tmp_dem = dem.with_name(dem.name + ".part")
-        with open(tmp_dem, "wb") as fh:
+        # temporary files under new unique names beside the targets, created exclusively (a fixed
+        # NAME.dem.part was renamed over an input of that name: a review)
+        tag = secrets.token_hex(6)
+        tmp_dem = dem.with_name(f"{dem.name}.{tag}.part")
+        with open(tmp_dem, "xb") as fh:                  # "x": fails rather than replace anything
             for j in range(0, self.nlat, _BLOCK_ROWS):
                 fh.write(np.ascontiguousarray(data[j:j + _BLOCK_ROWS]).tobytes())
         rmax = max(self.rmax, float(np.max(data)))
@@ -583,8 +588,9 @@ class DEM:
                 f"{self.re!r}    re: equatorial radius of the spheroid\n"
                 f"dtype = {dtype}\n"
                 f"byteorder = {byteorder}\n")
-        tmp_hdr = hdr.with_name(hdr.name + ".part")
-        tmp_hdr.write_text(text, encoding="utf-8")
+        tmp_hdr = hdr.with_name(f"{hdr.name}.{tag}.part")
+        with open(tmp_hdr, "x", encoding="utf-8") as fh:
+            fh.write(text)
         os.replace(tmp_dem, dem)
         os.replace(tmp_hdr, hdr)
         return hdr

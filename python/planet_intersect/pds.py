@@ -555,12 +555,16 @@ def pds_dem(label: str | os.PathLike, *, heights_above: float | None = None, dty
             raise PDSError(f"PDS data {data}: its median radius {med:.6g} km is not within a factor "
                            f"{RADIUS_FACTOR} of A_AXIS_RADIUS = {re_km} km ({hint})")
     try:
-        return DEM.from_array(km, f=f, re=re_km)
+        dem = DEM.from_array(km, f=f, re=re_km)
     except DEMError as exc:
         raise PDSError(f"PDS data {data} (label {path}): {exc}") from None
+    dem._inputs = (path, data)                            # what import_pds must never write over
+    return dem
 
 
 def import_pds(label: str | os.PathLike, out: str | os.PathLike, *, heights_above: float | None = None,
                overwrite: bool = False) -> Path:
-    """Convert a PDS3 grid (see :func:`pds_dem`) to a ``.hdr``/``.dem`` pair (float32 km); return the ``.hdr``."""
-    return pds_dem(label, heights_above=heights_above).write(out, dtype="float32", overwrite=overwrite, inputs=[label])
+    """Convert a PDS3 grid (see :func:`pds_dem`) to a ``.hdr``/``.dem`` pair (float32 km); return the ``.hdr``.
+    Never over the label or the data file."""
+    dem = pds_dem(label, heights_above=heights_above)
+    return dem.write(out, dtype="float32", overwrite=overwrite, inputs=dem._inputs)

@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import math
 import os
+import re as _re
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -34,10 +36,14 @@ __all__ = ["SHADRError", "read_shadr", "legendre_normalised", "shadr_radius", "s
 
 #: the finest DEM a model may be evaluated on (pixels per degree)
 MAX_PPD = 16
-#: the highest degree read (GTM090AA: 90; MOLA's finest SHADR models reach 2,600)
-MAX_DEGREE = 3000
-#: the largest SHADR file read (bytes)
-MAX_BYTES = 1_000_000_000
+#: the highest degree read (GTM090AA: 90). The column recursions start from the sectorials
+#: Pbar_mm ~ cos(lat)^m, which underflow double precision where m > 308 / -log10(cos lat); an
+#: order whose functions are O(1) somewhere needs m < n cos(lat). Both hold only where
+#: n cos(lat) (-log10 cos lat) > 308, and the left side is at most n 0.16 (cos lat = 1/e):
+#: safe to n ~ 1,900. A review found degree 3,000 wrong (1e37 for 1.1 at 60 deg, m = 1,200)
+MAX_DEGREE = 1800
+#: the largest SHADR file read (bytes): a degree-1,800 model is ~200 MB
+MAX_BYTES = 250_000_000
 
 
 class SHADRError(ValueError):
@@ -54,10 +60,16 @@ def read_shadr(path: str | os.PathLike) -> dict:
     p = Path(path)
     where = f"SHADR file {p}"
     try:
-        size = p.stat().st_size
-        if size > MAX_BYTES:
-            raise SHADRError(f"{where}: {size:,} bytes, more than the {MAX_BYTES:,} a SHADR file may have")
-        text = p.read_bytes().decode("ascii")
+        st = p.stat()
+        if not stat.S_ISREG(st.st_mode):                # a FIFO hung, /dev/zero filled the memory (a review)
+            raise SHADRError(f"{where}: not a regular file")
+        if st.st_size > MAX_BYTES:
+            raise SHADRError(f"{where}: {st.st_size:,} bytes, more than the {MAX_BYTES:,} a SHADR file may have")
+        with open(p, "rb") as fh:
+            raw = fh.read(MAX_BYTES + 1)
+        if len(raw) > MAX_BYTES:
+            raise SHADRError(f"{where}: more than the {MAX_BYTES:,} bytes a SHADR file may have")
+        text = raw.decode("ascii")
     except OSError as exc:
         raise SHADRError(f"{where}: cannot read it ({exc.strerror or exc})") from None
     except UnicodeDecodeError as exc:
@@ -67,10 +79,12 @@ def read_shadr(path: str | os.PathLike) -> dict:
         raise SHADRError(f"{where}: empty")
 
     def fields(k, line, n):
-        parts = [x.strip() for x in line.split(",")]
-        parts = [x for x in parts if x]
-        if len(parts) < n:
-            raise SHADRError(f"{where}, line {k}: {len(parts)} comma-separated fields, expected {n}")
+        # fields are separated by commas or white space (GTM090AA: commas; GGM1025A: spaces); an
+        # empty field between two commas is an error, never skipped (it shifted the columns: a review)
+        parts = [x.strip() for x in _re.split(r"\s*,\s*|\s+", line.strip())]
+        if len(parts) < n or "" in parts[:n]:
+            raise SHADRError(f"{where}, line {k}: expected {n} fields separated by commas or spaces, none empty: "
+                             f"{line.strip()[:70]!r}")
         return parts[:n]
 
     def number(k, tok, what, integer=False):
@@ -87,16 +101,26 @@ def read_shadr(path: str | os.PathLike) -> dict:
     h = fields(k0, head, 8)
     ref = number(k0, h[0], "reference radius")
     const = number(k0, h[1], "constant")
+    number(k0, h[2], "uncertainty of the constant")
     degree = number(k0, h[3], "degree", integer=True)
     order = number(k0, h[4], "order", integer=True)
     norm = number(k0, h[5], "normalisation state", integer=True)
+    ref_lon = number(k0, h[6], "reference longitude")
+    ref_lat = number(k0, h[7], "reference latitude")
     if not ref > 0:
-        raise SHADRError(f"{where}, line {k0}: reference radius {ref:g} km is not positive")
+        raise SHADRError(f"{where}, line {k0}: reference radius {ref!r} km is not positive")
     if const != 1.0:
-        raise SHADRError(f"{where}, line {k0}: constant {const:g}: a gravity field (GM), not a shape model (constant 1)")
-    if not (1 <= degree <= MAX_DEGREE and 0 <= order <= degree):
+        raise SHADRError(f"{where}, line {k0}: constant {const!r}: a gravity field (GM), not a shape model "
+                         f"(constant 1)")
+    if ref_lon != 0 or ref_lat != 0:
+        raise SHADRError(f"{where}, line {k0}: reference longitude {ref_lon!r} and latitude {ref_lat!r}: a model "
+                         f"about a rotated pole is not read (both must be 0)")
+    if not (degree >= 1 and 0 <= order <= degree):
         raise SHADRError(f"{where}, line {k0}: degree {degree} and order {order}: need 0 <= order <= degree and "
-                         f"1 <= degree <= {MAX_DEGREE}")
+                         f"1 <= degree")
+    if degree > MAX_DEGREE:
+        raise SHADRError(f"{where}, line {k0}: degree {degree}: above {MAX_DEGREE}, where this evaluation's "
+                         f"Legendre recursion underflows (shadr.MAX_DEGREE)")
     C = np.zeros((degree + 1, degree + 1))
     S = np.zeros((degree + 1, degree + 1))
     seen = np.zeros((degree + 1, degree + 1), dtype=bool)
@@ -127,22 +151,22 @@ def read_shadr(path: str | os.PathLike) -> dict:
 
 def legendre_normalised(degree: int, x: np.ndarray) -> np.ndarray:
     """Pbar[n, m, k] at x[k] = sin(latitude): 4-pi fully normalised associated Legendre
-    functions, no Condon-Shortley phase (the standard column recursions; stable to degree
-    ~2,700 in double precision away from the poles' underflow, which sectorials meet first)."""
-    x = np.asarray(x, dtype=float)
+    functions, no Condon-Shortley phase, by the standard column recursions (vectorised over
+    m: one Python step a degree). Valid to MAX_DEGREE (its comment says why)."""
+    x = np.asarray(x, dtype=float).ravel()
     u = np.sqrt(np.clip(1.0 - x * x, 0.0, None))                  # cos(latitude)
     P = np.zeros((degree + 1, degree + 1, x.size))
     P[0, 0] = 1.0
     if degree >= 1:
         P[1, 1] = math.sqrt(3.0) * u
-    for m in range(2, degree + 1):                                   # sectorials
-        P[m, m] = math.sqrt((2 * m + 1) / (2 * m)) * u * P[m - 1, m - 1]
-    for m in range(0, degree):
-        P[m + 1, m] = math.sqrt(2 * m + 3) * x * P[m, m]
-        for n in range(m + 2, degree + 1):
-            a = math.sqrt((2 * n - 1) * (2 * n + 1) / ((n - m) * (n + m)))
-            b = math.sqrt((2 * n + 1) * (n + m - 1) * (n - m - 1) / ((n - m) * (n + m) * (2 * n - 3)))
-            P[n, m] = a * x * P[n - 1, m] - b * P[n - 2, m]
+        P[1, 0] = math.sqrt(3.0) * x
+    for n in range(2, degree + 1):
+        m = np.arange(n - 1)
+        a = np.sqrt((2 * n - 1) * (2 * n + 1) / ((n - m) * (n + m)))[:, None]
+        b = np.sqrt((2 * n + 1) * (n + m - 1) * (n - m - 1) / ((n - m) * (n + m) * (2 * n - 3)))[:, None]
+        P[n, :n - 1] = a * x * P[n - 1, :n - 1] - b * P[n - 2, :n - 1]
+        P[n, n - 1] = math.sqrt(2 * n + 1) * x * P[n - 1, n - 1]          # (m = n - 1)
+        P[n, n] = math.sqrt((2 * n + 1) / (2 * n)) * u * P[n - 1, n - 1]  # sectorial
     return P
 
 

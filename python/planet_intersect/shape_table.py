@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -80,10 +81,16 @@ def read_shape_table(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, n
     p = Path(path)
     where = f"shape table {p}"
     try:
-        size = p.stat().st_size
-        if size > MAX_BYTES:
-            raise ShapeTableError(f"{where}: {size:,} bytes, more than the {MAX_BYTES:,} a shape table may have")
-        text = p.read_bytes().decode("ascii")
+        st = p.stat()
+        if not stat.S_ISREG(st.st_mode):                # a FIFO would hang, /dev/zero fill the memory
+            raise ShapeTableError(f"{where}: not a regular file")
+        if st.st_size > MAX_BYTES:
+            raise ShapeTableError(f"{where}: {st.st_size:,} bytes, more than the {MAX_BYTES:,} a shape table may have")
+        with open(p, "rb") as fh:
+            raw = fh.read(MAX_BYTES + 1)
+        if len(raw) > MAX_BYTES:
+            raise ShapeTableError(f"{where}: more than the {MAX_BYTES:,} bytes a shape table may have")
+        text = raw.decode("ascii")
     except OSError as exc:
         raise ShapeTableError(f"{where}: cannot read it ({exc.strerror or exc})") from None
     except UnicodeDecodeError as exc:
