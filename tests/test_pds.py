@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 
 import planet_intersect as pi
 from planet_intersect.cli import main
-from planet_intersect.pds import PDSError, pds_dem, read_pds3_label
+from planet_intersect.pds import PDSError, import_pds, pds_dem, read_pds3_label
 
 from conftest import mixed_rays, shared_data_or_skip
 
@@ -485,3 +485,19 @@ def test_a_data_file_longer_than_its_grid_warns(tmp_path):
     img.write_bytes(img.read_bytes() * 2)
     with pytest.warns(UserWarning, match="bytes after the grid"):
         pds_dem(path)
+
+
+def test_import_never_writes_over_the_label_or_its_data_file(tmp_path):
+    # a review: import-pds protected only the label; with --overwrite an output named like the
+    # data file replaced it. OUT.dem / OUT.hdr that are (links to) the inputs are refused
+    label = make_product(tmp_path, _surface())
+    data = tmp_path / "grid.img"
+    before = data.read_bytes(), label.read_bytes()
+    (tmp_path / "out.dem").symlink_to(data)
+    with pytest.raises(FileExistsError, match="is the input file"):
+        import_pds(label, tmp_path / "out", overwrite=True)
+    (tmp_path / "out2.hdr").symlink_to(label)
+    with pytest.raises(FileExistsError, match="is the input file"):
+        import_pds(label, tmp_path / "out2", overwrite=True)
+    assert (data.read_bytes(), label.read_bytes()) == before
+    assert import_pds(label, tmp_path / "fine").is_file()
