@@ -439,10 +439,16 @@ def _import_mola(args) -> int:
 
     if bool(args.radius) == bool(args.topography):
         raise CLIError("give --radius IMG, or --topography IMG with --areoid IMG")
+    return _imported(import_mola, args.out, radius=args.radius, topography=args.topography, areoid=args.areoid,
+                     overwrite=args.overwrite)
+
+
+def _imported(write, *args, **kw) -> int:
+    """Run an importer that writes a DEM pair and report it (its FileExistsError's advice names the
+    library's argument: the CLI's is --overwrite)."""
     try:
-        hdr = import_mola(args.out, radius=args.radius, topography=args.topography, areoid=args.areoid,
-                          overwrite=args.overwrite)
-    except FileExistsError as exc:                 # (the library's advice names its Python argument)
+        hdr = write(*args, **kw)
+    except FileExistsError as exc:
         raise CLIError(str(exc).replace("pass overwrite=True", "give --overwrite")) from None
     print(f"wrote {hdr} and {hdr.with_suffix('.dem')}")
     return 0
@@ -451,35 +457,20 @@ def _import_mola(args) -> int:
 def _import_pds(args) -> int:
     from .pds import import_pds
 
-    try:
-        hdr = import_pds(args.label, args.out, heights_above=args.heights_above, overwrite=args.overwrite)
-    except FileExistsError as exc:                 # (the library's advice names its Python argument)
-        raise CLIError(str(exc).replace("pass overwrite=True", "give --overwrite")) from None
-    print(f"wrote {hdr} and {hdr.with_suffix('.dem')}")
-    return 0
+    return _imported(import_pds, args.label, args.out, heights_above=args.heights_above, overwrite=args.overwrite)
 
 
 def _import_shape_table(args) -> int:
     from .shape_table import import_shape_table
 
-    try:
-        hdr = import_shape_table(args.table, args.out, ppd=args.ppd, longitude=args.longitude, re=args.re,
-                                 overwrite=args.overwrite)
-    except FileExistsError as exc:                 # (the library's advice names its Python argument)
-        raise CLIError(str(exc).replace("pass overwrite=True", "give --overwrite")) from None
-    print(f"wrote {hdr} and {hdr.with_suffix('.dem')}")
-    return 0
+    return _imported(import_shape_table, args.table, args.out, ppd=args.ppd, longitude=args.longitude, re=args.re,
+                     overwrite=args.overwrite)
 
 
 def _import_shadr(args) -> int:
     from .shadr import import_shadr
 
-    try:
-        hdr = import_shadr(args.sha, args.out, ppd=args.ppd, degree=args.degree, overwrite=args.overwrite)
-    except FileExistsError as exc:                 # (the library's advice names its Python argument)
-        raise CLIError(str(exc).replace("pass overwrite=True", "give --overwrite")) from None
-    print(f"wrote {hdr} and {hdr.with_suffix('.dem')}")
-    return 0
+    return _imported(import_shadr, args.sha, args.out, ppd=args.ppd, degree=args.degree, overwrite=args.overwrite)
 
 
 def _fetch_mola(args) -> int:

@@ -243,6 +243,27 @@ def _float32_up(x: np.ndarray) -> np.ndarray:
 
 
 
+def read_small_text(path: Path, where: str, max_bytes: int, error: type) -> str:
+    """The ASCII text of a regular file of at most ``max_bytes`` (an importer's input: shape
+    tables, SHADR models); anything else raises ``error`` with ``where`` (a FIFO hung and
+    /dev/zero filled the memory before this check: a review)."""
+    try:
+        st = path.stat()
+        if not stat.S_ISREG(st.st_mode):
+            raise error(f"{where}: not a regular file")
+        if st.st_size > max_bytes:
+            raise error(f"{where}: {st.st_size:,} bytes, more than the {max_bytes:,} it may have")
+        with open(path, "rb") as fh:
+            raw = fh.read(max_bytes + 1)
+        if len(raw) > max_bytes:
+            raise error(f"{where}: more than the {max_bytes:,} bytes it may have")
+        return raw.decode("ascii")
+    except OSError as exc:
+        raise error(f"{where}: cannot read it ({exc.strerror or exc})") from None
+    except UnicodeDecodeError as exc:
+        raise error(f"{where}: not ASCII text (byte {exc.start})") from None
+
+
 class DEM:
     """A global DEM of planetocentric radii (see the module docstring for the grid).
 

@@ -25,12 +25,11 @@ from __future__ import annotations
 import math
 import os
 import re as _re
-import stat
 from pathlib import Path
 
 import numpy as np
 
-from .dem import DEM
+from .dem import DEM, read_small_text
 
 __all__ = ["SHADRError", "read_shadr", "legendre_normalised", "shadr_radius", "shadr_dem", "import_shadr"]
 
@@ -59,21 +58,7 @@ def read_shadr(path: str | os.PathLike) -> dict:
     once, finite values, S_n0 = 0. Raises SHADRError naming the file and the line."""
     p = Path(path)
     where = f"SHADR file {p}"
-    try:
-        st = p.stat()
-        if not stat.S_ISREG(st.st_mode):                # a FIFO hung, /dev/zero filled the memory (a review)
-            raise SHADRError(f"{where}: not a regular file")
-        if st.st_size > MAX_BYTES:
-            raise SHADRError(f"{where}: {st.st_size:,} bytes, more than the {MAX_BYTES:,} a SHADR file may have")
-        with open(p, "rb") as fh:
-            raw = fh.read(MAX_BYTES + 1)
-        if len(raw) > MAX_BYTES:
-            raise SHADRError(f"{where}: more than the {MAX_BYTES:,} bytes a SHADR file may have")
-        text = raw.decode("ascii")
-    except OSError as exc:
-        raise SHADRError(f"{where}: cannot read it ({exc.strerror or exc})") from None
-    except UnicodeDecodeError as exc:
-        raise SHADRError(f"{where}: not ASCII text (byte {exc.start})") from None
+    text = read_small_text(p, where, MAX_BYTES, SHADRError)
     lines = [(k, ln) for k, ln in enumerate(text.splitlines(), start=1) if ln.strip()]
     if not lines:
         raise SHADRError(f"{where}: empty")

@@ -22,12 +22,11 @@ from __future__ import annotations
 
 import math
 import os
-import stat
 from pathlib import Path
 
 import numpy as np
 
-from .dem import DEM
+from .dem import DEM, read_small_text
 
 __all__ = ["ShapeTableError", "read_shape_table", "shape_table_dem", "import_shape_table"]
 
@@ -80,21 +79,7 @@ def read_shape_table(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, n
     first problem (with its line)."""
     p = Path(path)
     where = f"shape table {p}"
-    try:
-        st = p.stat()
-        if not stat.S_ISREG(st.st_mode):                # a FIFO would hang, /dev/zero fill the memory
-            raise ShapeTableError(f"{where}: not a regular file")
-        if st.st_size > MAX_BYTES:
-            raise ShapeTableError(f"{where}: {st.st_size:,} bytes, more than the {MAX_BYTES:,} a shape table may have")
-        with open(p, "rb") as fh:
-            raw = fh.read(MAX_BYTES + 1)
-        if len(raw) > MAX_BYTES:
-            raise ShapeTableError(f"{where}: more than the {MAX_BYTES:,} bytes a shape table may have")
-        text = raw.decode("ascii")
-    except OSError as exc:
-        raise ShapeTableError(f"{where}: cannot read it ({exc.strerror or exc})") from None
-    except UnicodeDecodeError as exc:
-        raise ShapeTableError(f"{where}: not ASCII text (byte {exc.start})") from None
+    text = read_small_text(p, where, MAX_BYTES, ShapeTableError)
     t, line_of = _rows(text, where)
     if len(t) < 4:
         raise ShapeTableError(f"{where}: {len(t)} rows of data, too few for a grid")
