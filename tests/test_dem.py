@@ -119,3 +119,19 @@ def test_write_never_replaces_an_input_file_and_names_a_missing_folder(tmp_path)
     assert dem.write(tmp_path / "fine", inputs=[src, tmp_path / "never_existed"]).is_file()
     with pytest.raises(FileNotFoundError, match="does not exist"):
         dem.write(tmp_path / "no" / "folder" / "x")
+
+
+def test_a_failed_write_leaves_no_temporary_files(tmp_path, monkeypatch):
+    # DEM.write's parts have unique names now (a review); one that fails midway removes them
+    dem = pi.DEM.from_array(np.full((180, 360), 10.0, dtype=np.float32))
+
+    def full_disk(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(np, "ascontiguousarray", full_disk)
+    with pytest.raises(OSError, match="No space"):
+        dem.write(tmp_path / "x")
+    monkeypatch.undo()
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+    dem.write(tmp_path / "x")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.dem", "x.hdr"]

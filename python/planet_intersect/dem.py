@@ -599,9 +599,7 @@ class DEM:
         # NAME.dem.part was renamed over an input of that name: a review)
         tag = secrets.token_hex(6)
         tmp_dem = dem.with_name(f"{dem.name}.{tag}.part")
-        with open(tmp_dem, "xb") as fh:                  # "x": fails rather than replace anything
-            for j in range(0, self.nlat, _BLOCK_ROWS):
-                fh.write(np.ascontiguousarray(data[j:j + _BLOCK_ROWS]).tobytes())
+        tmp_hdr = hdr.with_name(f"{hdr.name}.{tag}.part")
         rmax = max(self.rmax, float(np.max(data)))
         text = (f"{self.ppd:d}    ppd: pixels per degree\n"
                 f"{rmax!r}    rmax: maximum radius\n"
@@ -609,9 +607,19 @@ class DEM:
                 f"{self.re!r}    re: equatorial radius of the spheroid\n"
                 f"dtype = {dtype}\n"
                 f"byteorder = {byteorder}\n")
-        tmp_hdr = hdr.with_name(f"{hdr.name}.{tag}.part")
-        with open(tmp_hdr, "x", encoding="utf-8") as fh:
-            fh.write(text)
+        made = []
+        try:
+            with open(tmp_dem, "xb") as fh:              # "x": fails rather than replace anything
+                made.append(tmp_dem)
+                for j in range(0, self.nlat, _BLOCK_ROWS):
+                    fh.write(np.ascontiguousarray(data[j:j + _BLOCK_ROWS]).tobytes())
+            with open(tmp_hdr, "x", encoding="utf-8") as fh:
+                made.append(tmp_hdr)
+                fh.write(text)
+        except BaseException:                            # a full disk, an interrupt: no stray parts left
+            for t in made:
+                t.unlink(missing_ok=True)
+            raise
         os.replace(tmp_dem, dem)
         os.replace(tmp_hdr, hdr)
         return hdr
