@@ -114,11 +114,12 @@ def read_shape_table(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, n
             raise ShapeTableError(f"{where}: the {name} pole row holds {np.unique(rad2[row]).size} different radii; "
                                   f"a pole has one")
     if np.isclose(lons[-1], 360.0, rtol=0, atol=1e-9):
-        seam = np.abs(rad2[:, -1] - rad2[:, 0]) / rad2[:, 0]
+        with np.errstate(over="ignore"):                # a subnormal radius: inf, refused below
+            seam = np.abs(rad2[:, -1] - rad2[:, 0]) / rad2[:, 0]
         if seam.max() > MAX_SEAM:
             i = int(np.argmax(seam))
             raise ShapeTableError(f"{where}: at latitude {float(lats[i])!r} the 360 and 0 longitude columns differ by "
-                                  f"{100 * seam[i]:.3g} % ({float(rad2[i, -1])!r} vs {float(rad2[i, 0])!r}); more than "
+                                  f"{100 * float(seam[i]):.3g} % ({float(rad2[i, -1])!r} vs {float(rad2[i, 0])!r}); more than "
                                   f"{100 * MAX_SEAM:g} % is not one surface")
     return lats.copy(), lons.copy(), rad2.copy()
 
