@@ -243,6 +243,13 @@ def _float32_up(x: np.ndarray) -> np.ndarray:
 
 
 
+def checked_ppd(ppd, limit: int) -> int:
+    """An importer's ppd argument as an int from 1 to ``limit`` (ValueError naming ppd otherwise)."""
+    if isinstance(ppd, bool) or not isinstance(ppd, (int, np.integer)) or not 1 <= int(ppd) <= limit:
+        raise ValueError(f"ppd must be an integer from 1 to {limit}, got {ppd!r}")
+    return int(ppd)
+
+
 def read_small_text(path: Path, where: str, max_bytes: int, error: type) -> str:
     """The ASCII text of a regular file of at most ``max_bytes`` (an importer's input: shape
     tables, SHADR models); anything else raises ``error`` with ``where`` (a FIFO hung and

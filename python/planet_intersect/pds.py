@@ -533,6 +533,11 @@ def pds_dem(label: str | os.PathLike, *, heights_above: float | None = None, dty
     or ``heights_above`` on a product of radii, are refused).
     See the module's docstring for what is accepted.
     """
+    return _pds_dem(label, heights_above=heights_above, dtype=dtype)[0]
+
+
+def _pds_dem(label: str | os.PathLike, *, heights_above: float | None = None, dtype="float32") -> tuple[DEM, Path]:
+    """pds_dem, and the data file it read (what import_pds must never write over)."""
     if dtype not in ("float32", "float64", np.float32, np.float64):
         raise PDSError(f"dtype: float32 or float64, got {dtype!r}")
     if heights_above is not None:
@@ -555,16 +560,14 @@ def pds_dem(label: str | os.PathLike, *, heights_above: float | None = None, dty
             raise PDSError(f"PDS data {data}: its median radius {med:.6g} km is not within a factor "
                            f"{RADIUS_FACTOR} of A_AXIS_RADIUS = {re_km} km ({hint})")
     try:
-        dem = DEM.from_array(km, f=f, re=re_km)
+        return DEM.from_array(km, f=f, re=re_km), data
     except DEMError as exc:
         raise PDSError(f"PDS data {data} (label {path}): {exc}") from None
-    dem._inputs = (path, data)                            # what import_pds must never write over
-    return dem
 
 
 def import_pds(label: str | os.PathLike, out: str | os.PathLike, *, heights_above: float | None = None,
                overwrite: bool = False) -> Path:
     """Convert a PDS3 grid (see :func:`pds_dem`) to a ``.hdr``/``.dem`` pair (float32 km); return the ``.hdr``.
     Never over the label or the data file."""
-    dem = pds_dem(label, heights_above=heights_above)
-    return dem.write(out, dtype="float32", overwrite=overwrite, inputs=dem._inputs)
+    dem, data = _pds_dem(label, heights_above=heights_above)
+    return dem.write(out, dtype="float32", overwrite=overwrite, inputs=[label, data])

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .dem import DEM, read_small_text
+from .dem import DEM, checked_ppd, read_small_text
 
 __all__ = ["SHADRError", "read_shadr", "legendre_normalised", "shadr_radius", "shadr_dem", "import_shadr"]
 
@@ -183,12 +183,10 @@ def shadr_radius(model: dict, lat_deg, lon_deg, degree: int | None = None) -> np
 
 def shadr_dem(path: str | os.PathLike, *, ppd: int = 1, degree: int | None = None) -> DEM:
     """A DEM (km) of a SHADR shape model evaluated at the pixel centres of a ``ppd`` grid."""
-    if isinstance(ppd, bool) or not isinstance(ppd, (int, np.integer)) or not 1 <= int(ppd) <= MAX_PPD:
-        raise ValueError(f"ppd must be an integer from 1 to {MAX_PPD}, got {ppd!r}")
+    ppd = checked_ppd(ppd, MAX_PPD)
     if degree is not None and (isinstance(degree, bool) or not isinstance(degree, (int, np.integer))):
         raise ValueError(f"degree must be an integer, got {degree!r}")
     model = read_shadr(path)
-    ppd = int(ppd)
     lat = -90.0 + (np.arange(180 * ppd) + 0.5) / ppd
     lon = (np.arange(360 * ppd) + 0.5) / ppd
     radii_km = shadr_radius(model, lat, lon, degree) / 1000.0

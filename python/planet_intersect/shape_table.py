@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .dem import DEM, read_small_text
+from .dem import DEM, checked_ppd, read_small_text
 
 __all__ = ["ShapeTableError", "read_shape_table", "shape_table_dem", "import_shape_table"]
 
@@ -42,15 +42,20 @@ class ShapeTableError(ValueError):
     """A shape table that cannot be read as a regular global node grid (names the file)."""
 
 
-def _rows(text: str, where: str) -> tuple[np.ndarray, np.ndarray]:
-    """The table's numbers (n, 3) and each row's line number in the file."""
+def _line_of(text: str, row: int) -> int:
+    """The file line (1-based) of data row ``row`` (0-based; blank lines hold no row): only for
+    an error's message."""
+    return int(np.flatnonzero([bool(ln.strip()) for ln in text.splitlines()])[row]) + 1
+
+
+def _rows(text: str, where: str) -> np.ndarray:
+    """The table's numbers (n, 3)."""
     import io
 
     try:
         t = np.loadtxt(io.StringIO(text), dtype=float, comments=None, ndmin=2)
         if t.shape[1] == 3 and np.isfinite(t).all():
-            lines = np.flatnonzero([bool(ln.strip()) for ln in text.splitlines()]) + 1
-            return t, lines
+            return t
     except ValueError:
         pass
     # something is wrong: the first bad line, named
@@ -80,7 +85,7 @@ def read_shape_table(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, n
     p = Path(path)
     where = f"shape table {p}"
     text = read_small_text(p, where, MAX_BYTES, ShapeTableError)
-    t, line_of = _rows(text, where)
+    t = _rows(text, where)
     if len(t) < 4:
         raise ShapeTableError(f"{where}: {len(t)} rows of data, too few for a grid")
     lat, lon, rad = t[:, 0], t[:, 1], t[:, 2]
@@ -93,7 +98,7 @@ def read_shape_table(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, n
     lats, lons = lat2[:, 0], lon2[0]
     if not (np.all(lat2 == lats[:, None]) and np.all(lon2 == lons[None, :])):
         bad = int(np.argmax((lat2 != lats[:, None]) | (lon2 != lons[None, :])))
-        raise ShapeTableError(f"{where}, line {line_of[bad]}: latitude {float(lat[bad])!r}, longitude {float(lon[bad])!r} "
+        raise ShapeTableError(f"{where}, line {_line_of(text, bad)}: latitude {float(lat[bad])!r}, longitude {float(lon[bad])!r} "
                               f"breaks the grid (each latitude's row must list the same longitudes)")
     step = (lats[-1] - lats[0]) / (nlat - 1) if nlat > 1 else 0.0
     if not (lats[0] == -90.0 and lats[-1] == 90.0 and step > 0):
@@ -108,7 +113,7 @@ def read_shape_table(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, n
                               f"step {step:.10g} deg; they run {float(lons[0])!r} to {float(lons[-1])!r} in {nlon} values")
     if not np.all(rad2 > 0):
         k = int(np.argmax(~(rad2.ravel() > 0)))
-        raise ShapeTableError(f"{where}, line {line_of[k]}: radius {float(rad[k])!r} is not positive")
+        raise ShapeTableError(f"{where}, line {_line_of(text, k)}: radius {float(rad[k])!r} is not positive")
     for row, name in ((0, "south"), (nlat - 1, "north")):
         if not np.all(rad2[row] == rad2[row, 0]):
             raise ShapeTableError(f"{where}: the {name} pole row holds {np.unique(rad2[row]).size} different radii; "
@@ -149,9 +154,7 @@ def shape_table_dem(path: str | os.PathLike, *, ppd: int | None = None, longitud
     step = float(lats[1] - lats[0])
     if ppd is None:
         ppd = min(MAX_PPD, max(1, math.ceil(1.0 / step - 1e-9)))
-    if isinstance(ppd, bool) or not isinstance(ppd, (int, np.integer)) or not 1 <= int(ppd) <= MAX_PPD:
-        raise ValueError(f"ppd must be an integer from 1 to {MAX_PPD}, got {ppd!r}")
-    ppd = int(ppd)
+    ppd = checked_ppd(ppd, MAX_PPD)
     nodes = rad
     if np.isclose(lons[-1], 360.0, rtol=0, atol=1e-9):     # the repeated column: the mean of the two
         nodes = rad[:, :-1].copy()
@@ -167,7 +170,7 @@ def shape_table_dem(path: str | os.PathLike, *, ppd: int | None = None, longitud
     radii = np.empty((180 * ppd, 360 * ppd), dtype=np.float64 if big else np.float32)
     for start in range(0, 180 * ppd, 256):             # rows in blocks: no full-size float64 temporaries
         rows = np.arange(start, min(start + 256, 180 * ppd))
-        v = (-90.0 + (rows + 0.5) / ppd + 90.0) / step
+        v = (rows + 0.5) / ppd / step                  # the pixel centres' latitude + 90, in node steps
         i0 = np.minimum(np.floor(v).astype(int), nodes.shape[0] - 2)
         wv = (v - i0)[:, None]
         r00, r01 = nodes[i0][:, j0], nodes[i0][:, j1]
