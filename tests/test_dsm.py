@@ -84,7 +84,7 @@ def test_antimeridian_extent():
     (dict(heights=np.ones((1, 4))), "bilinear interpolation needs at least 2 x 2"),
     (dict(heights=np.array([[1.0, np.inf], [1, 1]])), r"heights\[0, 1\] is infinite"),
     (dict(heights=np.full((2, 2), np.nan)), "every cell is no-data"),
-    (dict(heights=[["a", "b"], ["c", "d"]]), "heights: not an array of numbers"),
+    (dict(heights=[["a", "b"], ["c", "d"]]), "heights: must be real numbers"),
     (dict(dlat=0.0), "dlat must be non-zero"),
     (dict(dlon=-1.0), "dlon must be positive"),
     (dict(dlon=np.nan), "dlon must be finite"),

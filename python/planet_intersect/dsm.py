@@ -60,6 +60,45 @@ def _unmask(values, name: str, error=DSMError):
     return values.astype(np.float64).filled(np.nan)
 
 
+def _numeric(values, name: str):
+    """``values`` as a NumPy array of real numbers (integers or floats), else DSMError naming
+    ``name``: strings, bytes, booleans, dates, durations, complex numbers and ragged lists were
+    taken (or crashed inside NumPy) where scalar arguments are refused (a review: '12.5' read as
+    12.5 m, True as 1 m, a date as 18,262 m)."""
+    try:
+        arr = np.asarray(values)
+    except (TypeError, ValueError) as exc:
+        raise DSMError(f"{name}: not an array of numbers ({_short(exc)})") from None
+    if arr.dtype.kind == "O":
+        try:
+            arr = np.asarray(values, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise DSMError(f"{name}: not an array of numbers ({_short(exc)})") from None
+    if arr.dtype.kind not in "fiu":
+        raise DSMError(f"{name}: must be real numbers (integers or floats), got dtype {arr.dtype}")
+    return arr
+
+
+def _nodata_cells(values: np.ndarray, nodata) -> np.ndarray:
+    """Where ``values`` equal ``nodata``, compared also in the values' own float precision: a
+    float32 raster's -999.9 is -999.9000244 in float64 and did not match nodata=-999.9, so no-data
+    cells became -999.9 m pits (a review)."""
+    cells = values == nodata
+    if values.dtype.kind == "f" and values.dtype.itemsize < 8:
+        with np.errstate(over="ignore", invalid="ignore"):
+            own = np.asarray(nodata, dtype=np.float64).astype(values.dtype)
+        if np.isfinite(own):
+            cells |= values == own
+    return cells
+
+
+def _short(exc, limit: int = 300) -> str:
+    """An exception's text cut to ``limit`` characters (PROJ's errors quote whole CRS definitions:
+    2,334 characters of PROJJSON in one message, a review)."""
+    s = " ".join(str(exc).split())
+    return s if len(s) <= limit else s[:limit] + " ..."
+
+
 def _file_nodata(nodata, file_nodata):
     """The no-data value of a raster being read: the caller's ``nodata``, else the
     file's tag, where a NaN tag (GDAL's usual) counts as none, NaN being no data
@@ -126,13 +165,8 @@ class GeodeticDSM:
         self = object.__new__(cls)
         if isinstance(interpolation, str) is False or interpolation not in _INTERP:
             raise DSMError(f"interpolation must be 'bilinear' or 'nearest', got {interpolation!r}")
-        heights = _unmask(heights, "heights")                 # masked cells are no data
-        if np.iscomplexobj(heights):
-            raise DSMError("heights: must be real numbers, got complex values")
-        try:
-            h = np.array(heights, dtype=np.float64, copy=True)
-        except (TypeError, ValueError) as exc:
-            raise DSMError(f"heights: not an array of numbers ({exc})") from None
+        heights = _numeric(_unmask(heights, "heights"), "heights")      # masked cells are no data
+        h = np.array(heights, dtype=np.float64, copy=True)
         if h.ndim != 2:
             raise DSMError(f"heights must be 2-D [nrows, ncols], got shape {h.shape}")
         nmin = 2 if interpolation == "bilinear" else 1
@@ -146,7 +180,7 @@ class GeodeticDSM:
             nodata = None                                      # NaN marks no data already
         if nodata is not None:
             nd = _number(nodata, "nodata")
-            h[h == nd] = np.nan
+            h[_nodata_cells(heights, nd)] = np.nan
             nodata = nd
         lat_first = _number(lat_first, "lat_first")
         lon_first = _number(lon_first, "lon_first")
@@ -189,19 +223,25 @@ class GeodeticDSM:
                 # (the reader's own message said "DSM file ...": a review)
                 raise FileNotFoundError(f"geoid file {geoid}: no such file") from None
             except DSMError as exc:
-                raise DSMError(f"geoid: {exc}") from None
+                # (the reader speaks of a "DSM file": here it is the geoid's, a review)
+                raise DSMError(f"geoid: {str(exc).replace('DSM file', 'geoid file', 1)}") from None
             geoid_name = f"geoid raster {geoid}"
-            same = (g.heights.shape == h.shape and
-                    np.allclose([g.lat_first, g.lon_first, g.dlat, g.dlon], [lat_first, lon_first, dlat, dlon],
-                                rtol=0, atol=1e-9 * max(abs(dlat), abs(dlon))))
-            if not same:
-                raise DSMError(f"geoid raster {geoid}: its grid differs from the heights' grid")
+            if g.heights.shape != h.shape:
+                raise DSMError(f"geoid raster {geoid}: its grid is {g.heights.shape[0]} x {g.heights.shape[1]} "
+                               f"cells, the heights' {h.shape[0]} x {h.shape[1]}")
+            tol = 1e-9 * max(abs(dlat), abs(dlon))
+            for key, mine in (("lat_first", lat_first), ("lon_first", lon_first), ("dlat", dlat), ("dlon", dlon)):
+                theirs = getattr(g, key)
+                if not abs(theirs - mine) <= tol:
+                    raise DSMError(f"geoid raster {geoid}: its grid differs from the heights' grid: {key} = "
+                                   f"{theirs!r} degrees against {mine!r}")
             geoid = np.asarray(g.heights)
         if geoid is not None:
-            try:
-                n_ = np.asarray(geoid, dtype=np.float64)
-            except (TypeError, ValueError) as exc:
-                raise DSMError(f"geoid: not a number or array ({exc})") from None
+            if isinstance(geoid, (bool, np.bool_, str, bytes)):
+                raise DSMError(f"geoid must be a number, an array or a raster's path, got {geoid!r}")
+            # masked cells are NaN (np.asarray dropped the mask, and a masked -9999 was added as an
+            # undulation, a review); then real numbers only
+            n_ = np.asarray(_numeric(_unmask(geoid, "geoid"), "geoid"), dtype=np.float64)
             if n_.ndim not in (0, 2) or (n_.ndim == 2 and n_.shape != h.shape):
                 raise DSMError(f"geoid must be a scalar or an array shaped like heights {h.shape}, got {n_.shape}")
             # needed where there are heights; no-data cells may have none (a geoid raster warped
@@ -364,7 +404,7 @@ class GeodeticDSM:
 
     # ---- readers
     @classmethod
-    def read(cls, path, band: int = 1, nodata=None, geoid=None, interpolation: str | None = None,
+    def read(cls, path, band: int | None = None, nodata=None, geoid=None, interpolation: str | None = None,
              resampling: str = "nearest", a: float = WGS84_A, f: float = WGS84_F, hmax=None) -> "GeodeticDSM":
         """Read a DSM from a GeoTIFF (rasterio, extra ``geo``) or an ``.npz``.
 
@@ -382,21 +422,27 @@ class GeodeticDSM:
         feet is converted to metres. ``interpolation`` defaults to
         "nearest" for a warped raster, else "bilinear".
 
+        ``band``: the band to read (default 1; a file with more bands then
+        warns). Cells that the file's own mask band or alpha band marks
+        invalid are no data, as are cells of its nodata tag.
+
         ``.npz``: arrays ``heights`` and scalars ``lat_first``, ``lon_first``,
         ``dlat``, ``dlon`` (optional ``a``, ``f``, ``nodata``, ``interpolation``).
 
         The file is only read, never written.
         """
+        if not isinstance(path, (str, os.PathLike)):
+            raise DSMError(f"path must be a file's path (str or pathlib.Path), got {type(path).__name__} {path!r}")
         path = Path(path)
         if path.is_dir():
             raise DSMError(f"DSM file {path}: is a directory, not a raster or .npz file")
         if not path.is_file():
             raise FileNotFoundError(f"DSM file {path}: no such file")
-        if isinstance(band, (bool, np.bool_)) or not isinstance(band, (int, np.integer)):
+        if band is not None and (isinstance(band, (bool, np.bool_)) or not isinstance(band, (int, np.integer))):
             raise DSMError(f"band must be a whole number (1 for the first band), got {band!r}")
         if path.suffix.lower() == ".npz":
-            if band != 1:
-                raise DSMError(f"band = {band}: a .npz DSM ({path}) has one band (it was ignored: a review)")
+            if band not in (None, 1):
+                raise DSMError(f"band = {band}: a .npz DSM ({path}) has one band")
             return cls._read_npz(path, nodata, geoid, interpolation, a, f, hmax)
         return cls._read_raster(path, band, nodata, geoid, interpolation, resampling, a, f, hmax)
 
@@ -409,6 +455,9 @@ class GeodeticDSM:
             if key in d and np.ndim(d[key]) != 0:
                 raise DSMError(f"DSM file {path}: {key} must be a single number, got an array of shape "
                                f"{np.shape(d[key])}")
+            if key in d and d[key].dtype.kind not in "fiu":
+                # (a string '10' was read as 10 degrees, a review)
+                raise DSMError(f"DSM file {path}: {key} must be a number, got {d[key]!r} (dtype {d[key].dtype})")
         try:
             dsm = cls.from_array(d["heights"], float(d["lat_first"]), float(d["lon_first"]), float(d["dlat"]),
                                  float(d["dlon"]), a=float(d.get("a", a)), f=float(d.get("f", f)),
@@ -433,14 +482,28 @@ class GeodeticDSM:
         except Exception as exc:  # noqa: BLE001
             raise DSMError(f"DSM file {path}: cannot be opened as a raster ({exc})") from None
         with src:
-            if src.crs is None:
-                raise DSMError(f"DSM file {path}: no CRS (a geographic or projected CRS is needed)")
+            if band is None:
+                band = 1
+                if src.count > 1:
+                    warnings.warn(f"DSM file {path}: has {src.count} bands; band 1 is read (pass band= to "
+                                  f"choose another)", UserWarning, stacklevel=3)
             if not (1 <= band <= src.count):
                 raise DSMError(f"DSM file {path}: band {band} does not exist (the file has {src.count})")
             nd = _file_nodata(nodata, src.nodata)
             file_bands = int(src.count)
-            raw = src.read(band)                          # once: the branches below convert it
-            if nd is None and raw.dtype == np.int16 and int(raw.min()) == -32768:
+            try:
+                # read before anything else is judged: a truncated file raised rasterio's bare "Read
+                # failed" naming neither file nor problem, or was said to have no CRS (a review)
+                raw = src.read(band)                      # once: the branches below convert it
+                invalid = _mask_band(src, band)
+            except Exception as exc:  # noqa: BLE001
+                raise DSMError(f"DSM file {path}: band {band} cannot be read (truncated or corrupt?): "
+                               f"{_short(exc)}") from None
+            if src.crs is None:
+                raise DSMError(f"DSM file {path}: no CRS (a geographic or projected CRS is needed)")
+            if raw.dtype.kind not in "fiu":
+                raise DSMError(f"DSM file {path}: band {band} holds {raw.dtype} values, not real numbers")
+            if nd is None and raw.dtype == np.int16 and raw[~invalid].size and int(raw[~invalid].min()) == -32768:
                 # the usual void of int16 DEMs (SRTM): read as 32.8 km pits (a review); the planetary
                 # reader refuses -32768 as well
                 raise DSMError(f"DSM file {path}: band {band} is int16 and holds -32768, the usual void value, "
@@ -449,28 +512,29 @@ class GeodeticDSM:
             if untagged and raw.size and raw.dtype.kind in "fi":
                 # the other usual voids, untagged: a float -9999 was read as a 9,999 m pit and every
                 # method hit it (a walk-through)
-                values = raw[~np.isnan(raw)] if raw.dtype.kind == "f" else raw
+                values = raw[~invalid & ~np.isnan(raw)] if raw.dtype.kind == "f" else raw[~invalid]
                 lowest = float(values.min()) if values.size else math.nan
                 if lowest in _VOID_VALUES or lowest <= -1e30:
                     raise DSMError(f"DSM file {path}: band {band} holds {lowest:g}, a usual no-data value, but "
                                    f"has no nodata tag: pass nodata={lowest:g} to read those cells as no data "
                                    f"(or nodata=<a value not in the file> to read them as heights)")
             warped = None
+            void = invalid if nd is None else (invalid | _nodata_cells(raw, nd))
             if src.crs.is_geographic and _geographic_datum(src.crs, src.bounds, path, "DSM", a, f) == "as-is":
                 t = src.transform
                 if t.b != 0 or t.d != 0:
                     raise DSMError(f"DSM file {path}: rotated or sheared pixel grid is not supported")
                 heights = raw.astype(np.float64)
+                heights[void] = np.nan
                 dlon, dlat = t.a, t.e
                 lon_first = t.c + 0.5 * t.a
                 lat_first = t.f + 0.5 * t.e
                 crs = src.crs
             else:
-                dst_crs, tr, w, hgt = _geodetic_grid(src, path, "DSM", DSMError)
+                dst_crs, tr, w, hgt = _geodetic_grid(src, path, "DSM", DSMError, a, f)
                 heights = np.full((hgt, w), np.nan)
                 srcdata = raw.astype(np.float64)
-                if nd is not None:
-                    srcdata[srcdata == nd] = np.nan
+                srcdata[void] = np.nan
                 reproject(srcdata, heights, src_transform=src.transform, src_crs=src.crs, src_nodata=np.nan,
                           dst_transform=tr, dst_crs=dst_crs, dst_nodata=np.nan,
                           resampling=getattr(Resampling, resampling))
@@ -494,25 +558,101 @@ class GeodeticDSM:
         return dsm
 
 
-def _geodetic_grid(src, path, what: str, error):
-    """The WGS-84 geodetic grid a raster ``src`` (rasterio, projected or another datum) is warped to:
-    ``(dst_crs, transform, width, height)``, rasterio's ``calculate_default_transform`` (about the
-    source's resolution). A raster across the antimeridian has, in EPSG:4326, a grid spanning
-    -180..180 with zero rows (a 300 m UTM tile at 180 E crashed rasterio: a walk-through); the same
-    datum with longitudes in [0, 360) keeps it whole, and GeodeticDSM and OrthoImage take grids that
-    cross the antimeridian. Any failure is ``error`` naming the file."""
+def _mask_band(src, band: int) -> np.ndarray:
+    """Cells of ``band`` that the raster's own mask band or alpha band marks invalid (GDAL's
+    per-dataset mask, an internal ``.msk`` or an alpha band): True there. A nodata tag is not
+    read here (``_file_nodata`` decides it, the caller may replace it). Such cells were read as
+    heights of 0 m (a review)."""
+    from rasterio.enums import MaskFlags
+
+    flags = src.mask_flag_enums[band - 1]
+    if MaskFlags.per_dataset in flags or MaskFlags.alpha in flags:
+        return src.read_masks(band) == 0
+    return np.zeros((src.height, src.width), dtype=bool)
+
+
+def _geodetic_grid(src, path, what: str, error, a=None, f=None):
+    """The geodetic grid a raster ``src`` (rasterio, projected or another datum) is warped to:
+    ``(dst_crs, transform, width, height)``.
+
+    Target CRS: WGS-84 (EPSG:4326) for a raster on an Earth datum; for a raster on another body,
+    that body's own geographic CRS (it was always EPSG:4326: a Mars equirectangular DTM failed with
+    2,334 characters of PROJJSON, a review). ``a``, ``f`` (the DSM's ellipsoid; None: an
+    ortho-image, WGS-84 as before) must be the target's: a UTM raster was taken as Mars, or as the
+    Earth in kilometres with 49 m buildings 49 km tall, where the geographic reader refuses (a review).
+
+    Cells: the source's pixel size in metres at the raster's centre, north-south and east-west
+    separately (rasterio's default grid has square cells in degrees: at 72 N a 2 m raster became
+    5.1 m north-south, and one-pixel walls vanished, a review); for a raster in degrees, rasterio's
+    default. A raster across the antimeridian has, in EPSG:4326, a grid spanning -180..180 with
+    zero rows (a 300 m UTM tile at 180 E crashed rasterio: a walk-through); the same datum with
+    longitudes in [0, 360) keeps it whole, and GeodeticDSM and OrthoImage take grids that cross the
+    antimeridian. Any failure is ``error`` naming the file."""
+    import pyproj
+    from rasterio.crs import CRS
     from rasterio.warp import calculate_default_transform
 
-    dst_crs = "EPSG:4326"
     try:
-        tr, w, hgt = calculate_default_transform(src.crs, dst_crs, src.width, src.height, *src.bounds)
+        c = pyproj.CRS.from_user_input(src.crs.to_wkt())
+        ell = c.ellipsoid
+    except Exception as exc:  # noqa: BLE001
+        raise error(f"{what} file {path}: its CRS cannot be used ({_short(exc)})") from None
+    if ell is None or c.geodetic_crs is None:
+        raise error(f"{what} file {path}: its CRS ({c.name}) is not tied to an ellipsoid (an engineering or "
+                    f"local CRS): it cannot be placed on a body")
+    ca = ell.semi_major_metre
+    cf = 0.0 if not ell.inverse_flattening else 1.0 / ell.inverse_flattening
+    earth = abs(ca - WGS84_A) <= 0.01 * WGS84_A
+    own = a is not None and math.isclose(ca, a, rel_tol=1e-9) and math.isclose(cf, f, rel_tol=1e-9, abs_tol=1e-12)
+    if earth and (a is None or (math.isclose(a, WGS84_A, rel_tol=1e-12) and math.isclose(f, WGS84_F, rel_tol=1e-9))):
+        dst_crs, wrap = "EPSG:4326", "+proj=longlat +datum=WGS84 +lon_wrap=180 +no_defs"
+    elif own or (not earth and a is None):
+        g = c.geodetic_crs
+        dst_crs = CRS.from_wkt(g.to_wkt())
+        wrap = f"+proj=longlat +a={ca!r} +rf={1.0 / cf!r} +lon_wrap=180 +no_defs" if cf else \
+            f"+proj=longlat +R={ca!r} +lon_wrap=180 +no_defs"
+    elif earth:
+        raise error(f"{what} file {path}: its CRS ({c.name}, a = {ca:.10g}) is an Earth datum, but "
+                    f"a = {a:.10g}, f = {f:.10g} was asked for")
+    else:
+        raise error(f"{what} file {path}: its CRS ({c.name}) is on the ellipsoid a = {ca:.10g}, "
+                    f"f = {cf:.10g}, not a = {a:.10g}, f = {f:.10g}: pass that body's a= and f=")
+    res = None
+    if c.is_projected:
+        # the source's pixel in metres (its unit: feet...), as degrees of latitude and longitude at
+        # the raster's centre (the meridian and prime-vertical radii of its ellipsoid)
+        try:
+            unit = c.axis_info[0].unit_conversion_factor if c.axis_info else 1.0
+            to_geo = pyproj.Transformer.from_crs(c, c.geodetic_crs, always_xy=True)
+            xc = 0.5 * (src.bounds.left + src.bounds.right)
+            yc = 0.5 * (src.bounds.bottom + src.bounds.top)
+            lon_c, lat_c = to_geo.transform(xc, yc)
+        except Exception:  # noqa: BLE001  (then rasterio's default grid below)
+            lat_c = math.nan
+        if math.isfinite(lat_c) and abs(lat_c) < 89.99:
+            e2 = cf * (2.0 - cf)
+            s2 = math.sin(math.radians(lat_c)) ** 2
+            m_rad = ca * (1.0 - e2) / (1.0 - e2 * s2) ** 1.5
+            n_rad = ca / math.sqrt(1.0 - e2 * s2)
+            px, py = abs(src.transform.a) * unit, abs(src.transform.e) * unit
+            if px > 0 and py > 0:
+                res = (math.degrees(px / (n_rad * math.cos(math.radians(lat_c)))), math.degrees(py / m_rad))
+    try:
+        kw = {"resolution": res} if res else {}
+        tr, w, hgt = calculate_default_transform(src.crs, dst_crs, src.width, src.height, *src.bounds, **kw)
         if w == 0 or hgt == 0 or w * abs(tr.a) > 180.0:
-            dst_crs = "+proj=longlat +datum=WGS84 +lon_wrap=180 +no_defs"
-            tr, w, hgt = calculate_default_transform(src.crs, dst_crs, src.width, src.height, *src.bounds)
+            dst_crs = wrap
+            tr, w, hgt = calculate_default_transform(src.crs, dst_crs, src.width, src.height, *src.bounds, **kw)
         if w == 0 or hgt == 0:
             raise ValueError(f"the geodetic grid has {hgt} x {w} cells")
     except Exception as exc:  # noqa: BLE001
-        raise error(f"{what} file {path}: cannot be warped to a geodetic grid ({exc})") from None
+        raise error(f"{what} file {path}: cannot be warped to a geodetic grid ({_short(exc)}); a raster that "
+                    f"contains or nearly reaches a pole cannot be put on a latitude/longitude grid: crop it "
+                    f"away from the pole") from None
+    if w * hgt > 16 * max(src.width * src.height, 1) + 1_000_000:
+        raise error(f"{what} file {path}: its geodetic grid would have {hgt} x {w} cells for "
+                    f"{src.height} x {src.width} pixels (a raster reaching near a pole): crop it away "
+                    f"from the pole")
     return dst_crs, tr, w, hgt
 
 
@@ -617,7 +757,7 @@ class DSMResult(RayTable):
     lat: np.ndarray  #: geodetic latitude of p
     lon: np.ndarray  #: east longitude of p
     height: np.ndarray  #: exact geodetic height of p above the ellipsoid
-    surface_height: np.ndarray  #: DSM height H at (lat, lon) of p (= height except on walls of "nearest")
+    surface_height: np.ndarray  #: DSM height H at (lat, lon) of p (= height except on walls of "nearest" and where a low ray enters the grid through its edge)
     distance: np.ndarray  #: r, distance from s along the unit ray
     incidence: np.ndarray  #: angle between -l and the ellipsoid normal at p (0 = vertical view)
     status: np.ndarray  #: per-ray code, see :class:`DSMStatus`
@@ -685,8 +825,11 @@ def intersect_dsm(dsm: GeodeticDSM, s, l, method: str = "following", threads: in
     threads : int, optional
         OpenMP threads (None or 0: all cores); results bit-identical for any count.
     outside : "none" or "ellipsoid"
-        "ellipsoid": rays that leave the DSM (LEFT_DSM) also get their first
-        intersection with the bare ellipsoid (``ellipsoid_*``, ``on_ellipsoid``).
+        "ellipsoid": rays that leave the DSM (LEFT_DSM) also get the point where
+        they enter the bare ellipsoid (h = 0, from above) at or after the point
+        where they left (``ellipsoid_*``, ``on_ellipsoid``); none for a ray that
+        crossed h = 0 before it left (a DSM below the ellipsoid) or starts
+        below h = 0.
 
     Raises
     ------
@@ -719,7 +862,18 @@ def intersect_dsm(dsm: GeodeticDSM, s, l, method: str = "following", threads: in
     if outside == "ellipsoid":
         left = np.flatnonzero(status == DSMStatus.LEFT_DSM)
         if left.size:
-            r = _ellipsoid_entry(s[left], l[left] / np.linalg.norm(l[left], axis=1, keepdims=True), dsm.a, dsm.f)
+            # the ground a ray that left the DSM falls back to: where it enters the bare ellipsoid from
+            # above (h = 0 going down), at or after the point where it left (event_distance). The
+            # first forward crossing of h = 0 was taken before: a focal point below h = 0 (a DSM of
+            # negative heights) got the exit through the far side of the Earth, 7,074 km away, and a
+            # ray over a -400 m DSM got a point over the DSM, 400 m above its surface, before it
+            # left (a review). Such rays now have no fallback (on_ellipsoid False).
+            r = _ellipsoid_entering(s[left], l[left] / np.linalg.norm(l[left], axis=1, keepdims=True),
+                                    dsm.a, dsm.f)
+            ev = res.event_distance[left]
+            with np.errstate(invalid="ignore"):
+                after = np.where(np.isfinite(ev), r >= ev - 1e-9 * np.maximum(np.abs(ev), dsm.a), True)
+            r = np.where(after, r, np.nan)
             ok = np.isfinite(r)
             k = left[ok]
             pe = s[k] + r[ok, None] * (l[k] / np.linalg.norm(l[k], axis=1, keepdims=True))
@@ -874,6 +1028,21 @@ def _check_depth(dsm: GeodeticDSM, s: np.ndarray, n2: np.ndarray | None = None) 
         raise ValueError(f"s[{k}] = {s[k]} lies {-float(h[np.argmax(deep)]):.6g} below the ellipsoid, under every "
                          f"height of the DSM and deeper than half the polar radius: the focal point must be "
                          f"above the surface")
+
+
+def _ellipsoid_entering(s, l, a, f):
+    """First r >= 0 where s + r l enters the ellipsoid from outside (NaN if s is not outside it,
+    or the line never enters ahead): the ground of intersect_dsm's outside="ellipsoid"."""
+    b = a * (1 - f)
+    w = np.array([1 / a, 1 / a, 1 / b])
+    ls, ss = l * w, s * w
+    qa = np.sum(ls * ls, axis=1)
+    qb = np.sum(ls * ss, axis=1)
+    qc = np.sum(ss * ss, axis=1) - 1
+    disc = qb * qb - qa * qc
+    with np.errstate(invalid="ignore"):
+        r1 = (-qb - np.sqrt(disc)) / qa
+    return np.where((disc >= 0) & (qc > 0) & (r1 >= 0), r1, np.nan)
 
 
 def _ellipsoid_entry(s, l, a, f):
