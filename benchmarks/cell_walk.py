@@ -9,10 +9,12 @@ looks at the exact mode (docs/shin-park-notes.md) left it at 4.2-6.3x and 4.4-7.
 a different question: how fast could ANY design that walks the ray's cells be? It times
 ``benchmarks/cell_walk/cell_walk_bound.f90``, compiled here with the package's own flags. Per ray:
 two crossings of raised ellipsoids, two conversions, a walk over 8 x 8-cell block maxima and then
-cells, and a closed-form bilinear root on a straight track. Also timed: cells alone, and 32 x 32-cell
-superblocks above the blocks. None of what makes an answer exact is there (margins, the curved
-track, refinement, no-data, walls). It is not sound (the output counts how many of its hits differ
-from the exact mode's), so its speed is an upper bound on a sound walk's.
+cells, and a closed-form bilinear root on a straight track. Also timed: cells alone, 32 x 32-cell
+superblocks above the blocks, and the walk followed by the least refinement a sound answer adds
+(two exact conversions 1 mm either side of its root and the root again: "Sixteenth look").
+None of what makes an answer exact is there (margins, the curved track, no-data, walls). It is not
+sound (the output counts how many of its hits differ from the exact mode's), so its speed is an
+upper bound on a sound walk's.
 
 Two conversions are timed: Heikkinen's exact closed form, and a cubic polynomial fitted over the
 scene's box (the fit's error on fresh points is measured against the package's geodetic_to_ecef and
@@ -135,7 +137,8 @@ class CellWalk:
     def trace(self, s, l, conv: int, level: int = 1):
         """(distances, NaN where no hit; (cells, blocks, superblocks) visited per ray). level 0: cells
         only; 1: 8 x 8-cell blocks, then cells; 3: 32 x 32-cell superblocks, blocks, cells; 2: the
-        set-up alone (crossings and conversions, no walk)."""
+        set-up alone (crossings and conversions, no walk); 4: as 1, then the least refinement a sound
+        answer needs (two exact conversions 1 mm either side of the root, the root again)."""
         dist, count = self.bind(s, l)(conv, level)
         return np.where(dist >= 0, dist, np.nan), count / len(s)
 
@@ -168,6 +171,19 @@ def run(scene: str, n: int, nrays: int, rounds: int, workdir: Path) -> dict:
                                 "hits": int(np.isfinite(d).sum()), "exact_hits": int(np.isfinite(ref).sum()),
                                 "within_1mm_of_exact": int((diff <= 1e-3).sum()),
                                 "max_difference_m": float(diff.max()) if diff.size else float("nan")}
+    # the walk plus the refinement a sound answer needs at least (level 4): how close to the exact hits
+    for conv, name in ((0, "heikkinen"), (1, "cubic")):
+        d, _ = fl.trace(s, l, conv, level=4)
+        walk, _ = fl.trace(s, l, conv, level=1)
+        both = np.isfinite(d) & np.isfinite(ref)
+        diff = np.abs(d - ref)[both]
+        bracketed = both & (np.abs(walk - ref) < 0.9e-3)     # the exact hit inside the +-1 mm bracket
+        out[f"refined_{name}"] = {"hits": int(np.isfinite(d).sum()),
+                                  "within_1um_of_exact": int((diff <= 1e-6).sum()),
+                                  "bracketed": int(bracketed.sum()),
+                                  "bracketed_within_1um_of_exact": int((np.abs(d - ref)[bracketed] <= 1e-6).sum()),
+                                  "median_difference_m": float(np.median(diff)) if diff.size else float("nan"),
+                                  "p99_difference_m": float(np.quantile(diff, 0.99)) if diff.size else float("nan")}
     # the other walks' visits (the same hits: the levels only change what is skipped)
     for level, name in ((0, "cells_only"), (3, "three_levels")):
         _, count = fl.trace(s, l, 0, level=level)
@@ -195,6 +211,8 @@ def run(scene: str, n: int, nrays: int, rounds: int, workdir: Path) -> dict:
         "cells_only_heikkinen": lambda: probe(0, 0),
         "three_levels_heikkinen": lambda: probe(0, 3),
         "three_levels_cubic": lambda: probe(1, 3),
+        "refined_heikkinen": lambda: probe(0, 4),
+        "refined_cubic": lambda: probe(1, 4),
     }
     per = {k: [] for k in calls}
     per["rugged"] = []
@@ -207,7 +225,7 @@ def run(scene: str, n: int, nrays: int, rounds: int, workdir: Path) -> dict:
     out["rays_per_second"] = {k: len(s) / float(np.median(v)) for k, v in per.items() if v}
     ratios = {}
     for num in ("following", "rugged", "exact"):
-        for den in ("exact", "walk_heikkinen", "walk_cubic"):
+        for den in ("exact", "walk_heikkinen", "walk_cubic", "refined_heikkinen", "refined_cubic"):
             if num != den and per[num]:
                 r = np.array(per[num]) / np.array(per[den])
                 ratios[f"{den}_over_{num}"] = [float(np.median(r)), float(r.min()), float(r.max())]
@@ -223,15 +241,16 @@ def plot(results: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     names = [("following", "following\n(faithful)"), ("rugged", "Rugged\nDuvenhage"), ("exact", "exact\n(package)"),
-             ("walk_heikkinen", "cell walk,\nexact conv."), ("walk_cubic", "cell walk,\ncubic conv.")]
-    fig, axes = plt.subplots(1, len(results), figsize=(5.2 * len(results), 4.4), sharey=True)
+             ("walk_heikkinen", "cell walk,\nexact conv."), ("refined_heikkinen", "+ least\nrefinement"),
+             ("walk_cubic", "cell walk,\ncubic conv."), ("refined_cubic", "+ least\nrefinement")]
+    fig, axes = plt.subplots(1, len(results), figsize=(6.4 * len(results), 4.6), sharey=True)
     for ax, res in zip(np.atleast_1d(axes), results):
         rps = res["rays_per_second"]
         us = [1e6 / rps[k] if k in rps else np.nan for k, _ in names]
         x = np.arange(len(names))
-        colours = ["#999999", "#c77c2e", "#2e6fc7", "#7fb07f", "#3f8f3f"]
+        colours = ["#999999", "#c77c2e", "#2e6fc7", "#7fb07f", "#a7d0a7", "#3f8f3f", "#8fbf8f"]
         ax.bar(x, us, color=colours)
-        for k, key in ((3, "setup_heikkinen"), (4, "setup_cubic")):
+        for k, key in ((3, "setup_heikkinen"), (5, "setup_cubic")):
             ax.bar(x[k], 1e6 / rps[key], color="none", edgecolor="black", hatch="//", linewidth=0.6,
                    label="set-up: 2 crossings, 2 conversions" if k == 3 else None)
         if "rugged" in rps:
@@ -241,7 +260,7 @@ def plot(results: list[dict], path: Path) -> None:
             if np.isfinite(u):
                 ax.text(xi, u * 1.04, f"{u:.2f}", ha="center", fontsize=8)
         ax.set_yscale("log")
-        ax.set_xticks(x, [n for _, n in names], fontsize=8)
+        ax.set_xticks(x, [n for _, n in names], fontsize=7)
         label = {"buildings-pushbroom": "random rays", "buildings-scan": "pushbroom scans"}.get(res["scene"], res["scene"])
         ax.set_title(f"{label} ({res['rays']:,} rays) on the {res['n']}$^2$ 1 m building DSM", fontsize=9)
         ax.grid(axis="y", alpha=0.3, which="both")

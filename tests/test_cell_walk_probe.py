@@ -127,3 +127,20 @@ def test_a_bound_call_does_no_work_over_the_grid(scene):
     finally:
         probe.h = saved
     np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("conv", [0, 1], ids=["heikkinen", "cubic"])
+def test_the_least_refinement_pins_bracketed_roots_to_a_micrometre(scene, conv):
+    # level 4 (the notes' "Sixteenth look"): two exact conversions 1 mm either side of the walk's
+    # root and the root again between them. Where the exact hit lies inside that bracket, the
+    # refined root is the exact mode's to 1e-6 m: the work timed is the work a sound answer needs.
+    walk, _ = scene["probe"].trace(scene["s"], scene["l"], conv, level=1)
+    refined, _ = scene["probe"].trace(scene["s"], scene["l"], conv, level=4)
+    ex = scene["exact"]
+    ref = np.where(ex.hit, ex.distance, np.nan)
+    bracketed = np.isfinite(walk) & np.isfinite(ref) & (np.abs(walk - ref) < 0.9e-3)
+    assert bracketed.sum() >= 0.3 * np.isfinite(ref).sum()
+    close = np.abs(refined - ref)[bracketed] <= 1e-6
+    assert close.mean() >= 0.9
+    # and it moved them: the walk alone is within 1e-6 m on far fewer of those rays
+    assert (np.abs(walk - ref)[bracketed] <= 1e-6).mean() < 0.5 * close.mean()

@@ -282,3 +282,116 @@ def test_python_dash_m_runs_the_command_line():
     out = subprocess.run([sys.executable, "-m", "planet_intersect", "--help"], capture_output=True, text=True,
                          timeout=120)
     assert out.returncode == 0 and "import-shape-table" in out.stdout
+
+
+# ---- the exact mode beside a no-data node on a small body (a third independent reference)
+
+def test_a_ray_in_a_node_columns_plane_beside_no_data_is_never_a_hit():
+    """A 9 x 9 bilinear grid cut from the review's 10 km body (f = 0.3), one no-data node in
+    column 5, and a ray in the meridian plane of node column 4: the lookup can put its points on
+    either side of the line. The rays 1e-9 off the plane are decided at once (east: NO_DATA
+    where the ray enters the no-data cells, 15,842.7988 m by the review's reference; west:
+    LEFT_DSM); the ray on the plane may end STEP_LIMIT (shin-park-notes note 20), never a hit
+    and never another answer."""
+    H = np.array([[1.1000000000000001e+00,1.5000000000000000e+00,1.0000000000000001e-01,1.3999999999999999e+00,1.1000000000000001e+00,5.0000000000000000e-01,5.0000000000000000e-01,1.3999999999999999e+00,
+      1.2000000000000000e+00],
+     [9.0000000000000002e-01,8.0000000000000004e-01,5.0000000000000000e-01,1.3000000000000000e+00,5.9999999999999998e-01,1.0000000000000001e-01,2.0000000000000001e-01,1.2000000000000000e+00,
+      1.6000000000000001e+00],
+     [1.8999999999999999e+00,6.9999999999999996e-01,1.3999999999999999e+00,1.0000000000000000e+00,1.0000000000000000e+00,4.0000000000000002e-01,0.0000000000000000e+00,1.7000000000000000e+00,
+      1.3999999999999999e+00],
+     [5.9999999999999998e-01,5.0000000000000000e-01,1.6000000000000001e+00,1.6000000000000001e+00,1.0000000000000001e-01,1.7000000000000000e+00,4.0000000000000002e-01,1.3000000000000000e+00,
+      1.2000000000000000e+00],
+     [1.3000000000000000e+00,1.8000000000000000e+00,1.5000000000000000e+00,1.2000000000000000e+00,1.7000000000000000e+00,2.0000000000000000e+00,1.6000000000000001e+00,1.1000000000000001e+00,
+      6.9999999999999996e-01],
+     [1.3000000000000000e+00,2.9999999999999999e-01,1.6000000000000001e+00,1.7000000000000000e+00,2.0000000000000000e+00,                   np.nan,5.9999999999999998e-01,5.9999999999999998e-01,
+      5.9999999999999998e-01],
+     [4.0000000000000002e-01,6.9999999999999996e-01,1.8000000000000000e+00,2.9999999999999999e-01,1.3000000000000000e+00,1.7183029614609342e+02,0.0000000000000000e+00,8.0000000000000004e-01,
+      2.0000000000000001e-01],
+     [2.0000000000000001e-01,1.8000000000000000e+00,1.8999999999999999e+00,8.0000000000000004e-01,2.9999999999999999e-01,1.6000000000000001e+00,2.9999999999999999e-01,1.3999999999999999e+00,
+      6.9999999999999996e-01],
+     [1.1000000000000001e+00,1.3999999999999999e+00,5.9999999999999998e-01,1.8000000000000000e+00,9.0000000000000002e-01,1.3000000000000000e+00,1.1000000000000001e+00,1.2000000000000000e+00,
+      1.3999999999999999e+00]])
+    lat0, lon0, dlat, dlon = 50.46784102032849, -18.379147056088247, -0.11347808309132745, 0.18009477154575038
+    s = np.array([20481.043469960787, -6520.098433211989, -3354.9426774893955])
+    l = np.array([-0.8271915435875159, 0.26333474147552766, 0.49639597515423095])
+    dsm = pi.GeodeticDSM.from_array(H, lat0, lon0, dlat, dlon, a=10000.0, f=0.3, interpolation="bilinear")
+    east = l + 1e-9 * np.cross(l, [0, 0, 1.0])
+    west = l - 1e-9 * np.cross(l, [0, 0, 1.0])
+    r = pi.intersect(dsm, np.array([s, s, s]), np.array([east, west, l]), method="exact", threads=1)
+    assert r.status[0] == pi.DSMStatus.NO_DATA and abs(r.event_distance[0] - 15842.798824934) < 1e-6
+    assert r.status[1] == pi.DSMStatus.LEFT_DSM
+    assert r.nsteps[0] < 1000 and r.nsteps[1] < 1000
+    assert r.status[2] in (pi.DSMStatus.NO_DATA, pi.DSMStatus.LEFT_DSM, pi.DSMStatus.STEP_LIMIT)
+
+
+def test_every_variable_of_to_xarray_has_units_and_a_long_name():
+    pytest.importorskip("xarray", reason="to_xarray needs xarray")
+    dsm = pi.GeodeticDSM.from_array(np.full((20, 20), 5.0), 10.0, 20.0, -1e-4, 1e-4)
+    s = pi.geodetic_to_ecef(10.0 - 1e-3, 20.0 + 1e-3, 500.0)
+    t = pi.geodetic_to_ecef(10.0 - 1e-3, 20.0 + 1e-3, 0.0)
+    ds = pi.intersect(dsm, s, t - s, method="exact").to_xarray()
+    # (seven variables had no attributes and none had units: a review)
+    for name, var in ds.data_vars.items():
+        assert var.attrs.get("long_name"), name
+        assert var.attrs.get("units"), name
+    assert ds["lat"].attrs["units"] == "degree" and ds["incidence"].attrs["units"] == "degree"
+    assert "semi-major axis" in ds["distance"].attrs["units"] and ds["status"].attrs["units"] == "1"
+    assert ds["distance"].values[0] == pytest.approx(500.0 - 5.0, abs=1e-6)
+    from planet_intersect.synthetic import rough_dem
+
+    ds2 = pi.intersect(rough_dem(ppd=1), [10000.0, 0.0, 0.0], [-1.0, 0.0, 0.0]).to_xarray()
+    for name, var in ds2.data_vars.items():
+        assert var.attrs.get("units"), name
+    assert ds2["emission"].attrs["units"] == "degree" and "km" in ds2["radius"].attrs["units"]
+
+
+# ---- the command line: what a run was made from, and messages in its own words
+
+def _npz_and_rays(tmp_path):
+    h = np.full((40, 40), 0.0)
+    h[18:22, 18:22] = 30.0
+    dsm_path = tmp_path / "tower.npz"
+    np.savez(dsm_path, heights=h, lat_first=0.0, lon_first=0.0, dlat=1e-5, dlon=1e-5, interpolation="nearest")
+    lines = []
+    for k in range(5):
+        lat, lon = 0.0002 + 1e-5 * k, 0.0002
+        s = np.array(pi.geodetic_to_ecef(lat, lon, 1000.0))
+        t = np.array(pi.geodetic_to_ecef(lat, lon, 0.0))
+        lines.append(" ".join(f"{x:.17g}" for x in (*s, *(t - s))))
+    rays = tmp_path / "rays.txt"
+    rays.write_text("\n".join(lines) + "\n")
+    return dsm_path, rays
+
+
+def test_a_runs_outputs_say_what_it_was_made_from(tmp_path, capsys):
+    import json
+
+    xr = pytest.importorskip("xarray", reason="run writes NetCDF through xarray")
+    from planet_intersect.cli import main
+
+    dsm_path, rays = _npz_and_rays(tmp_path)
+    assert main(["run", str(dsm_path), str(rays), "--method", "exact", "--outside", "ellipsoid",
+                 "--out", str(tmp_path / "o")]) == 0
+    assert main(["run", str(dsm_path), str(rays), "--out", str(tmp_path / "o")]) == 0
+    one, two = tmp_path / "o" / "run-001", tmp_path / "o" / "run-002"
+    j1, j2 = (json.loads((d / "run.json").read_text()) for d in (one, two))
+    assert (j1["method"], j1["outside"], j2["method"], j2["outside"]) == ("exact", "ellipsoid", "following", "none")
+    assert j1["surface"] == str(dsm_path.resolve()) and j1["rays"] == str(rays.resolve())
+    with xr.open_dataset(one / "results.nc", engine="h5netcdf") as ds:
+        assert ds.attrs["method"] == "exact" and ds.attrs["outside"] == "ellipsoid"
+        assert ds["lat"].attrs["units"] == "degree"
+        assert np.all(ds["hit"].values)
+    assert "run.json" in capsys.readouterr().out
+
+
+def test_run_speaks_in_options(tmp_path, capsys):
+    from planet_intersect.cli import main
+
+    dsm_path, rays = _npz_and_rays(tmp_path)
+    assert main(["run", str(dsm_path), str(rays), "--method", "stepping", "--out", str(tmp_path / "o")]) == 2
+    assert "--method stepping: not a method for the geodetic DSM" in capsys.readouterr().err
+    f = write(tmp_path / "void.tif", np.where(np.eye(6, 8) > 0, -9999.0, 10.0).astype("float32"), "EPSG:4326",
+              from_origin(10, 50, 1e-3, 1e-3))
+    assert main(["run", str(f), str(rays), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "pass --nodata -9999" in err and "nodata=" not in err

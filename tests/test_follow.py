@@ -318,7 +318,7 @@ def test_cli_run_on_a_dsm(tmp_path, capsys):
     np.testing.assert_allclose(table["height"], [50.0, 0.0], atol=1e-5)
     assert list(table["status"]) == [0, 0]
     assert main(["run", str(f), str(rays), "--method", "stepping", "--out", str(tmp_path / "o2")]) == 2
-    assert "method (for a GeodeticDSM) must be one of" in capsys.readouterr().err
+    assert "--method stepping: not a method for the geodetic DSM" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("interp", ["bilinear", "nearest"])

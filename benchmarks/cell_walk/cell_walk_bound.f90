@@ -78,7 +78,8 @@ contains
    !> Trace nray rays (s, l: (nray, 3) C-ordered, metres, body-fixed); dist(k) is the probe's
    !> distance to its hit or -1. grid = (lat_first, lon_first, dlat, dlon, a, f, hmin, hmax);
    !> coef(20, 3) and cen(3) the cubic map (conv = 1); level 0 walks cells only, 1 blocks
-   !> then cells, 3 superblocks, blocks, cells; 2 only sets up (no walk). ncount returns
+   !> then cells, 3 superblocks, blocks, cells; 2 only sets up (no walk); 4 as 1, then the
+   !> refinement a sound answer needs at least (two exact conversions, one more root). ncount returns
    !> (cells, blocks, superblocks visited) summed over the rays.
    subroutine walk_trace(nr, nc, h, cmax, bsz, nbr, nbc, bmax, nsr, nsc, smax, grid, conv, coef, cen, level, &
                          nray, s, l, dist, ncount) bind(c, name="walk_trace")
@@ -105,11 +106,34 @@ contains
          call to_grid(p0, g0)
          call to_grid(p1, g1)
          if (level == 2) cycle                          ! set-up only: the conversions' cost
-         ok = walk(min(level, 2), 0.0_dp, 1.0_dp, -huge(1), huge(1), -huge(1), huge(1), tr)
+         ok = walk(merge(1, min(level, 2), level == 4), 0.0_dp, 1.0_dp, -huge(1), huge(1), -huge(1), huge(1), tr)
          if (ok) dist(k) = ra + tr * (rb - ra)
+         if (ok .and. level == 4) call refine(s(:, k), u, dist(k))
       end do
 
    contains
+
+      !> Level 4: the least a sound answer adds to the walk's root r (not a proof either): the exact
+      !> (row, column, height) of two ray points 1 mm either side of it, a bracket from which a sound
+      !> search would refine, and the closed-form root again on the straight track between them,
+      !> in the cell of their midpoint. Always Heikkinen's exact conversion (a cubic map's remainder
+      !> is not proven).
+      subroutine refine(sk, u, r)
+         real(dp), intent(in) :: sk(3), u(3)
+         real(dp), intent(inout) :: r
+         real(dp), parameter :: half = 1.0e-3_dp
+         real(dp) :: lat, lon, t2
+         integer :: ci, cj
+         call heikkinen(sk + (r - half) * u, grid(5), grid(6), lat, lon, g0(3))
+         g0(1) = (lat * rad2deg - grid(1)) / grid(3)
+         g0(2) = (lon * rad2deg - grid(2)) / grid(4)
+         call heikkinen(sk + (r + half) * u, grid(5), grid(6), lat, lon, g1(3))
+         g1(1) = (lat * rad2deg - grid(1)) / grid(3)
+         g1(2) = (lon * rad2deg - grid(2)) / grid(4)
+         ci = min(max(floor(0.5_dp * (g0(1) + g1(1))), 0), nr - 2)
+         cj = min(max(floor(0.5_dp * (g0(2) + g1(2))), 0), nc - 2)
+         if (cell_root(ci, cj, 0.0_dp, 1.0_dp, t2)) r = r - half + 2 * half * t2
+      end subroutine refine
 
       subroutine to_grid(p, g)
          real(dp), intent(in) :: p(3)

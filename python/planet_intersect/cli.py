@@ -77,6 +77,30 @@ def _require(module: str, extra: str, what: str) -> None:
                        f"pip install 'planet-intersect[{extra}]'") from None
 
 
+def _provenance(args, **options) -> dict:
+    """What a run's outputs were made from, for results.nc's attributes and run.json: the
+    surface and ray files (absolute paths), the options that shape the answers, the package's
+    version and the command line (two runs with and without --outside could be told apart only
+    by one column: a review, 2026-12-05)."""
+    from . import __version__
+
+    return {"surface": str(Path(args.dem).resolve()), "rays": str(Path(args.rays).resolve()),
+            **{k: ("" if v is None else v) for k, v in options.items()},
+            "planet_intersect_version": __version__, "command": " ".join(sys.argv)}
+
+
+def _write_run(out: Path, res, prov: dict) -> list:
+    """results.csv, results.nc (with prov as attributes) and run.json in the run folder ``out``."""
+    import json
+
+    write_csv(out / "results.csv", res)
+    ds = res.to_xarray()
+    ds.attrs.update({k: (v if isinstance(v, (int, float, str)) else str(v)) for k, v in prov.items()})
+    ds.to_netcdf(out / "results.nc", engine="h5netcdf")
+    (out / "run.json").write_text(json.dumps(prov, indent=1) + "\n")
+    return [out / "results.csv", out / "results.nc", out / "run.json"]
+
+
 def write_csv(path: Path, result) -> None:
     """Per-ray results as CSV, one row per ray, vectors split into _x/_y/_z; numbers with 17
     significant digits, so that they read back as the same doubles (10 digits, as before, kept
@@ -289,15 +313,17 @@ def _run(args) -> int:
             setattr(args, k, default)
     _require("xarray", "xarray", "run (NetCDF output)")
     _require("h5netcdf", "xarray", "run (NetCDF output)")
+    if args.method is not None and args.method not in ("stepping", "exact"):
+        raise CLIError(f"--method {args.method}: not a method for the planetary DEM {args.dem} (stepping or exact)")
     dem = DEM.read(args.dem)
     s, l, lines = _read_rays(Path(args.rays))
     res = intersect_in_chunks(dem, s, l, where=(args.rays, lines), step_mode=args.step_mode,
                               dem_read_mode=args.dem_read_mode, tangent=args.tangent, method=args.method or "stepping",
                               threads=args.threads, io=args.io)
+    prov = _provenance(args, method=args.method or "stepping", step_mode=args.step_mode,
+                       dem_read_mode=args.dem_read_mode, tangent=args.tangent)
     with _run_dir(Path(args.out)) as out:
-        write_csv(out / "results.csv", res)
-        res.to_xarray().to_netcdf(out / "results.nc", engine="h5netcdf")
-        written = [out / "results.csv", out / "results.nc"]
+        written = _write_run(out, res, prov)
     print(f"{len(res)} rays: {int(res.hit.sum())} hit, {int((res.status == 1).sum())} limb, "
           f"{int((res.status == 2).sum())} away; wrote {', '.join(map(str, written))}")
     return 0
@@ -305,7 +331,7 @@ def _run(args) -> int:
 
 def _run_dsm(args) -> int:
     """`run` on a geodetic DSM (GeoTIFF or .npz): rays in its ellipsoid's ECR frame."""
-    from .dsm import DSMStatus, GeodeticDSM
+    from .dsm import DSMError, DSMStatus, GeodeticDSM
 
     given = [f"--{k.replace('_', '-')}" for k in _DEM_RUN_OPTIONS if getattr(args, k) is not None]
     if given:
@@ -319,10 +345,18 @@ def _run_dsm(args) -> int:
         except ValueError:
             if not Path(geoid).is_file():
                 raise CLIError(f"--geoid {geoid}: neither a number (metres) nor a file") from None
+    if args.method is not None and args.method not in ("following", "exact", "iterative"):
+        raise CLIError(f"--method {args.method}: not a method for the geodetic DSM {args.dem} "
+                       f"(following, exact or iterative)")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        dsm = GeodeticDSM.read(args.dem, band=args.band if args.band is not None else 1, nodata=args.nodata,
-                               geoid=geoid, interpolation=args.interpolation)
+        try:
+            dsm = GeodeticDSM.read(args.dem, band=args.band if args.band is not None else 1, nodata=args.nodata,
+                                   geoid=geoid, interpolation=args.interpolation)
+        except DSMError as exc:
+            # the reader speaks Python's keywords; here they are options (a review: "pass nodata=-9999")
+            msg = re.sub(r"\b(nodata|band|geoid)=", lambda m: f"--{m.group(1)} ", str(exc))
+            raise CLIError(msg) from None
     for w in _notes(caught):                    # one line each (not a Python warning)
         print(f"run: note: {w.message}", file=sys.stderr)
     if getattr(dsm, "file_bands", 1) > 1 and args.band is None:
@@ -332,10 +366,11 @@ def _run_dsm(args) -> int:
     method = args.method or "following"
     res = intersect_in_chunks(dsm, s, l, where=(args.rays, lines), method=method, threads=args.threads,
                               outside=args.outside or "none")
+    prov = _provenance(args, method=method, outside=args.outside or "none", interpolation=dsm.interpolation,
+                       band=args.band if args.band is not None else 1, nodata=args.nodata, geoid=args.geoid,
+                       resampling=dsm.resampling, hmax=dsm.hmax, hmin=dsm.hmin, a=dsm.a, f=dsm.f)
     with _run_dir(Path(args.out)) as out:
-        write_csv(out / "results.csv", res)
-        res.to_xarray().to_netcdf(out / "results.nc", engine="h5netcdf")
-        written = [out / "results.csv", out / "results.nc"]
+        written = _write_run(out, res, prov)
     # every status counted, so that the counts add up to the rays (a walk-through missed OSCILLATION)
     codes, counts = np.unique(res.status, return_counts=True)
     names = {v: k.lower().replace("_", " ") for k, v in vars(DSMStatus).items() if k.isupper()}

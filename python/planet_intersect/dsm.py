@@ -762,19 +762,23 @@ class DSMResult(RayTable):
     incidence: np.ndarray  #: angle between -l and the ellipsoid normal at p (0 = vertical view)
     status: np.ndarray  #: per-ray code, see :class:`DSMStatus`
     nsteps: np.ndarray  #: ray points evaluated
-    event_p: np.ndarray  #: NO_DATA / LEFT_DSM: first low point over no-data or outside the DSM
-    event_lat: np.ndarray
-    event_lon: np.ndarray
-    event_height: np.ndarray
-    event_distance: np.ndarray
+    event_p: np.ndarray  #: NO_DATA / LEFT_DSM: first low point over no-data or outside the DSM, ECR
+    event_lat: np.ndarray  #: geodetic latitude of event_p
+    event_lon: np.ndarray  #: east longitude of event_p
+    event_height: np.ndarray  #: geodetic height of event_p above the ellipsoid
+    event_distance: np.ndarray  #: distance of event_p from s along the unit ray
     on_ellipsoid: np.ndarray  #: outside="ellipsoid": LEFT_DSM rays given the bare-ellipsoid point
-    ellipsoid_p: np.ndarray  #: first intersection with the ellipsoid h = 0 (those rays)
-    ellipsoid_lat: np.ndarray
-    ellipsoid_lon: np.ndarray
-    ellipsoid_distance: np.ndarray
+    ellipsoid_p: np.ndarray  #: where those rays enter the bare ellipsoid h = 0 from above, after leaving the DSM; ECR
+    ellipsoid_lat: np.ndarray  #: geodetic latitude of ellipsoid_p
+    ellipsoid_lon: np.ndarray  #: east longitude of ellipsoid_p
+    ellipsoid_distance: np.ndarray  #: distance of ellipsoid_p from s along the unit ray
 
     #: what to_xarray() writes as the Dataset's "angles" attribute
     ANGLES = "degrees; latitudes geodetic, longitudes east in [-180, 180)"
+    ANGLE_FIELDS = frozenset({"lat", "lon", "incidence", "event_lat", "event_lon", "ellipsoid_lat", "ellipsoid_lon"})
+    LENGTH_FIELDS = frozenset({"p", "height", "surface_height", "distance", "event_p", "event_height",
+                               "event_distance", "ellipsoid_p", "ellipsoid_distance"})
+    LENGTHS = "the unit of the DSM's semi-major axis a (metres for the default WGS-84)"
 
     @staticmethod
     def _status_items():

@@ -33,6 +33,12 @@ class RayTable:
     ANGLES = ""
     #: field name -> what it is (the class docstring's Attributes and to_xarray's long_name)
     FIELD_DOCS: dict = {}
+    #: fields in degrees, and fields that are lengths (in LENGTHS); the rest are codes, counts
+    #: or flags (to_xarray's "units": "degree", LENGTHS, "1")
+    ANGLE_FIELDS: frozenset = frozenset()
+    LENGTH_FIELDS: frozenset = frozenset()
+    #: the unit of the lengths, as to_xarray writes it
+    LENGTHS = ""
 
     @staticmethod
     def _status_items():
@@ -53,8 +59,12 @@ class RayTable:
         for name, doc in self.FIELD_DOCS.items():          # what each variable is (a walk-through)
             if name in ds:
                 ds[name].attrs["long_name"] = doc
+        for name in ds.data_vars:                          # (none had units: a review, 2026-12-05)
+            ds[name].attrs["units"] = ("degree" if name in self.ANGLE_FIELDS else
+                                       self.LENGTHS if name in self.LENGTH_FIELDS else "1")
         ds.attrs["status_codes"] = "; ".join(f"{k}: {v}" for k, v in self._status_items())
         ds.attrs["angles"] = self.ANGLES
+        ds.attrs["lengths"] = self.LENGTHS
         return ds
 
     def to_table(self) -> dict:
@@ -98,6 +108,9 @@ class IntersectResult(RayTable):
 
     #: what to_xarray() writes as the Dataset's "angles" attribute
     ANGLES = "degrees; latitudes planetocentric, longitudes east in [0, 360)"
+    ANGLE_FIELDS = frozenset({"lat", "lon", "emission", "tangent_lat", "tangent_lon"})
+    LENGTH_FIELDS = frozenset({"p", "radius", "altitude", "t", "tc", "sc", "tangent_altitude", "tangent_height"})
+    LENGTHS = "the DEM's length unit (km for the legacy DEM format)"
 
     @staticmethod
     def _status_items():
