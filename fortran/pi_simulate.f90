@@ -56,14 +56,18 @@ module pi_simulate
 
 contains
 
-  !> Bilinear value of the ortho-image at (lat, lon) (radians), every band:
-  !> NaN outside the rectangle of pixel centres (widened by ortho_edge_tol) or
-  !> where a needed pixel is NaN.
+  !> Bilinear value of the ortho-image at (lat, lon) (radians), every band, between
+  !> pixel centres; over the image's outer half pixel (its pixels are areas: a raster's
+  !> bounds lie half a pixel beyond its outer centres) the edge pixels' values,
+  !> interpolated along the edge [sim note 8]. NaN beyond the image's bounds (widened by
+  !> ortho_edge_tol) or where a needed pixel is NaN; a neighbour within ortho_edge_tol
+  !> of no weight is not needed (a no-data pixel 3e-10 pixel away made a hit at a valid
+  !> centre NaN, and the outer half pixel of every ortho-image was fill: a review).
   pure subroutine ortho_sample(o, lat, lon, val)
     type(ortho_t), intent(in) :: o
     real(dp), intent(in) :: lat, lon
     real(dp), intent(out) :: val(o%nb)
-    real(dp) :: u, v, fu, fv, dl
+    real(dp) :: u, v, fu, fv, dl, e
     integer :: i, j, i1, j1
     if (abs(lon - o%lonc) <= pi) then
       v = (lon - o%lon0) / o%dlon                   ! column; exact at the pixel centres
@@ -72,8 +76,8 @@ contains
       v = (dl + (o%lonc - o%lon0)) / o%dlon
     end if
     u = (lat - o%lat0) / o%dlat                     ! row
-    if (.not. (u >= -ortho_edge_tol .and. u <= o%nrows - 1 + ortho_edge_tol .and. v >= -ortho_edge_tol &
-               .and. v <= o%ncols - 1 + ortho_edge_tol)) then
+    e = 0.5_dp + ortho_edge_tol
+    if (.not. (u >= -e .and. u <= o%nrows - 1 + e .and. v >= -e .and. v <= o%ncols - 1 + e)) then
       val = nan_dp
       return
     end if
@@ -85,6 +89,20 @@ contains
     fv = v - j
     i1 = min(i + 1, o%nrows - 1)
     j1 = min(j + 1, o%ncols - 1)
+    if (fu >= 1.0_dp - ortho_edge_tol) then
+      i = i1
+      fu = 0.0_dp
+    else if (fu <= ortho_edge_tol) then
+      fu = 0.0_dp
+    end if
+    if (fv >= 1.0_dp - ortho_edge_tol) then
+      j = j1
+      fv = 0.0_dp
+    else if (fv <= ortho_edge_tol) then
+      fv = 0.0_dp
+    end if
+    if (fu == 0.0_dp) i1 = i
+    if (fv == 0.0_dp) j1 = j
     val = (1 - fu) * ((1 - fv) * o%v(:, j + 1, i + 1) + fv * o%v(:, j1 + 1, i + 1)) &
           + fu * ((1 - fv) * o%v(:, j + 1, i1 + 1) + fv * o%v(:, j1 + 1, i1 + 1))
   end subroutine ortho_sample

@@ -37,7 +37,11 @@ def test_ortho_sample_nodes_midpoints_and_outside():
     lat = 10.0 - 0.5 * np.array([0, 1, 2, 0.5, 1.25])
     lon = 20.0 + 0.25 * np.array([0, 3, 1, 0.5, 2.5])
     np.testing.assert_allclose(o.sample(lat, lon), [0, 7, 9, 2.5, 4 * 1.25 + 2.5], rtol=0, atol=1e-12)  # v = 4i + j: exact
-    assert np.isnan(o.sample(10.6, 20.1)) and np.isnan(o.sample(8.9, 20.1)) and np.isnan(o.sample(9.5, 20.8))
+    # the outer half pixel is the edge pixels' (the image's bounds: a review found that ring at fill)
+    assert o.sample(8.9, 20.1) == pytest.approx(8.4, abs=1e-12) and o.sample(9.5, 20.8) == pytest.approx(7.0)
+    assert o.sample(10.2, 20.0) == pytest.approx(0.0, abs=1e-12)
+    # beyond the bounds: NaN
+    assert np.isnan(o.sample(10.6, 20.1)) and np.isnan(o.sample(8.7, 20.1)) and np.isnan(o.sample(9.5, 20.9))
 
 
 def test_ortho_rgb_nodata_and_private_copy():
@@ -380,11 +384,18 @@ def test_out_writer_faults_found_by_a_review(box, tmp_path, monkeypatch):
     assert _open_fds() == fds and not (tmp_path / "c2").exists()
     del info
     monkeypatch.undo()
-    # no memory for a block buffer (200,000 lines of 200,000 pixels): no handle left open
+    # no memory for a block buffer (65,000 lines of 65,000 pixels, ~2 TB of block temporaries): no
+    # handle left open
     with pytest.raises(MemoryError) as info:
-        pi.simulate_image(dsm, ortho, Wrapped((200_000, 200_000)), occlusion=False, block_lines=200_000,
+        pi.simulate_image(dsm, ortho, Wrapped((65_000, 65_000)), occlusion=False, block_lines=65_000,
                           out=tmp_path / "c3")
     assert _open_fds() == fds and not (tmp_path / "c3").exists()
+    del info
+    # more than MAX_PIXELS: refused before anything is opened, naming the sensor (200,000 x 200,000
+    # failed on a 3.64 TiB allocation that did not: a review)
+    with pytest.raises(ValueError, match=r"sensor: 200,000 x 200,000 = 40,000,000,000 pixels"):
+        pi.simulate_image(dsm, ortho, Wrapped((200_000, 200_000)), occlusion=False, out=tmp_path / "c4")
+    assert _open_fds() == fds and not (tmp_path / "c4").exists()
 
 
 def test_shading_longitude_from_the_hit_point_near_the_polar_axis():

@@ -312,7 +312,9 @@ def test_ortho_sample_at_its_own_edge_centres():
     """The simulation fuzzing (2026-12-03): OrthoImage.sample at the image's own centres() gave NaN
     for the whole last column of a 22 x 6 grid (its column coordinate rounds to 5.000000000000342
     of 5); the shading kernel already took points within 1e-6 pixels of the edge onto it. The
-    expectation is the stored values themselves; 1e-3 pixels outside stays NaN."""
+    expectation is the stored values themselves. Since 2026-12-05 the image's outer half pixel
+    holds its edge pixels' values (its bounds, a review): 1e-3 pixels outside is the edge value,
+    0.6 pixels outside NaN."""
     vals = np.arange(22 * 6, dtype=float).reshape(22, 6)
     o = pi.OrthoImage.from_array(vals, 70.67173795162601, 8.788884874354663, 8.435302429057608e-05,
                                  0.0006626611809803053)
@@ -321,9 +323,10 @@ def test_ortho_sample_at_its_own_edge_centres():
     got = o.sample(la, lo)
     assert not np.isnan(got).any()
     assert np.max(np.abs(got - vals)) < 1e-9
-    out = o.sample(lat[0] - 1e-3 * o.dlat, lon[2])
-    assert np.isnan(out)
-    assert np.isnan(o.sample(lat[3], lon[-1] + 1e-3 * o.dlon))
+    assert o.sample(lat[0] - 1e-3 * o.dlat, lon[2]) == pytest.approx(vals[0, 2], abs=1e-9)
+    assert o.sample(lat[3], lon[-1] + 1e-3 * o.dlon) == pytest.approx(vals[3, -1], abs=1e-9)
+    assert np.isnan(o.sample(lat[0] - 0.6 * o.dlat, lon[2]))
+    assert np.isnan(o.sample(lat[3], lon[-1] + 0.6 * o.dlon))
 
 
 def test_footprint_holds_every_hit_when_the_border_misses_the_dsm():

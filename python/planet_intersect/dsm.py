@@ -581,8 +581,8 @@ def _geodetic_grid(src, path, what: str, error, a=None, f=None):
     ortho-image, WGS-84 as before) must be the target's: a UTM raster was taken as Mars, or as the
     Earth in kilometres with 49 m buildings 49 km tall, where the geographic reader refuses (a review).
 
-    Cells: the source's pixel size in metres at the raster's centre, north-south and east-west
-    separately (rasterio's default grid has square cells in degrees: at 72 N a 2 m raster became
+    Cells: the source's pixel size on the ground at the raster's centre (its projected size over
+    the projection's scale factors there), north-south and east-west separately (rasterio's default grid has square cells in degrees: at 72 N a 2 m raster became
     5.1 m north-south, and one-pixel walls vanished, a review); for a raster in degrees, rasterio's
     default. A raster across the antimeridian has, in EPSG:4326, a grid spanning -180..180 with
     zero rows (a 300 m UTM tile at 180 E crashed rasterio: a walk-through); the same datum with
@@ -635,6 +635,15 @@ def _geodetic_grid(src, path, what: str, error, a=None, f=None):
             m_rad = ca * (1.0 - e2) / (1.0 - e2 * s2) ** 1.5
             n_rad = ca / math.sqrt(1.0 - e2 * s2)
             px, py = abs(src.transform.a) * unit, abs(src.transform.e) * unit
+            try:
+                # the projection's own scale there: a Web Mercator pixel of 10 units is 6.43 m on the
+                # ground at 50 N, and the grid came out 2.4 times coarser than the source (a review)
+                fac = pyproj.Proj(c).get_factors(lon_c, lat_c)
+                ks, km = float(fac.parallel_scale), float(fac.meridional_scale)
+                if math.isfinite(ks) and math.isfinite(km) and ks > 0 and km > 0:
+                    px, py = px / ks, py / km
+            except Exception:  # noqa: BLE001  (no factors: the pixel's size in projected units)
+                pass
             if px > 0 and py > 0:
                 res = (math.degrees(px / (n_rad * math.cos(math.radians(lat_c)))), math.degrees(py / m_rad))
     try:

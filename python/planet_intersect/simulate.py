@@ -19,6 +19,7 @@ Choices where the paper is silent are numbered notes in
 from __future__ import annotations
 
 import math
+import os
 import sys
 import time
 from dataclasses import dataclass, field, fields
@@ -34,6 +35,9 @@ __all__ = ["OrthoImage", "SimResult", "simulate_image", "SURFACE_CODES"]
 #: sim.surface codes (DESIGN.md section 9)
 SURFACE_CODES = {-1: "no hit", 0: "ground", 1: "roof", 2: "wall"}
 _METHODS = ("exact", "following", "iterative")
+#: largest image simulate_image takes (pixels): a million by a million was accepted and failed on a
+#: 3.64 TiB allocation that did not name the sensor (a review)
+MAX_PIXELS = 1 << 32
 
 
 # --------------------------------------------------------------------- grids
@@ -52,21 +56,27 @@ def _grid_coords(lat, lon, lat_first, lon_first, dlat, dlon, ncols):
     return u, v
 
 
-#: points within this many pixels outside the rectangle of pixel centres are taken on its edge:
-#: the shading kernel's ortho_edge_tol (fortran/pi_simulate.f90). OrthoImage.sample had none, and
-#: an image's own edge centres, whose coordinates round to 5.000000000000342 of 5, sampled to NaN
-#: (the simulation fuzzing, 2026-12-03)
+#: points within this many pixels of a pixel centre's row or column are taken on it (a neighbour
+#: with that little weight is not read: a no-data neighbour 3e-10 pixel away made a hit at a valid
+#: centre NaN, a review), and within this many pixels outside the image's bounds on its edge: the
+#: shading kernel's ortho_edge_tol (fortran/pi_simulate.f90). OrthoImage.sample had none, and an
+#: image's own edge centres, whose coordinates round to 5.000000000000342 of 5, sampled to NaN (the
+#: simulation fuzzing, 2026-12-03)
 ORTHO_EDGE_TOL = 1e-6
 
 
 def _bilinear(values, u, v):
     """Bilinear interpolation of ``values`` (nrows, ncols[, bands]) at fractional
-    (row, col); NaN outside the rectangle of pixel centres (widened by
-    ORTHO_EDGE_TOL, as the shading kernel does) or where a needed value is NaN."""
+    (row, col) between pixel centres; over the outer half pixel of the image (its
+    pixels are areas: the raster's bounds are half a pixel beyond its outer
+    centres) the edge pixels' values, interpolated along the edge. NaN beyond the
+    image's bounds (widened by ORTHO_EDGE_TOL, as the shading kernel does) or
+    where a needed value is NaN (a neighbour within ORTHO_EDGE_TOL of no weight is
+    not needed)."""
     nr, nc = values.shape[:2]
     u = np.asarray(u, dtype=np.float64)
     v = np.asarray(v, dtype=np.float64)
-    e = ORTHO_EDGE_TOL
+    e = ORTHO_EDGE_TOL + 0.5
     inside = (u >= -e) & (u <= nr - 1 + e) & (v >= -e) & (v <= nc - 1 + e)
     uu = np.where(inside, np.clip(u, 0.0, nr - 1), 0.0)
     vv = np.where(inside, np.clip(v, 0.0, nc - 1), 0.0)
@@ -75,12 +85,36 @@ def _bilinear(values, u, v):
     fu, fv = uu - i, vv - j
     i1 = np.minimum(i + 1, nr - 1)
     j1 = np.minimum(j + 1, nc - 1)
+    # on a centre's row or column (to ORTHO_EDGE_TOL): the other row or column has no weight, unread
+    up, left = fu >= 1.0 - ORTHO_EDGE_TOL, fv >= 1.0 - ORTHO_EDGE_TOL
+    i, j = np.where(up, i1, i), np.where(left, j1, j)
+    fu = np.where(up | (fu <= ORTHO_EDGE_TOL), 0.0, fu)
+    fv = np.where(left | (fv <= ORTHO_EDGE_TOL), 0.0, fv)
+    i1 = np.where(fu == 0.0, i, i1)
+    j1 = np.where(fv == 0.0, j, j1)
     if values.ndim == 3:
         fu, fv, inside = fu[..., None], fv[..., None], inside[..., None]
     with np.errstate(invalid="ignore"):
         out = ((1 - fu) * ((1 - fv) * values[i, j] + fv * values[i, j1])
                + fu * ((1 - fv) * values[i1, j] + fv * values[i1, j1]))
     return np.where(inside, out, np.nan)
+
+
+def _crs_semi_major(crs):
+    """The semi-major axis (metres) of a raster CRS's ellipsoid, or None when it has none."""
+    try:
+        import pyproj
+
+        ell = pyproj.CRS.from_user_input(crs.to_wkt()).ellipsoid
+        return None if ell is None else float(ell.semi_major_metre)
+    except Exception:  # noqa: BLE001
+        return None
+
+
+def _same_body(a_crs_m: float, a) -> bool:
+    """Whether an ortho-image's CRS (semi-major axis a_crs_m, metres) is on the body of a DSM of
+    semi-major axis ``a`` in metres or kilometres (the DSM's unit is the user's: lat/lon are not)."""
+    return any(abs(a * k - a_crs_m) <= 0.01 * a_crs_m for k in (1.0, 1000.0))
 
 
 # ---------------------------------------------------------------- ortho image
@@ -146,17 +180,26 @@ class OrthoImage:
         last = lat_first + (arr.shape[0] - 1) * dlat
         if not (-90 <= lat_first <= 90 and -90 <= last <= 90):
             raise ValueError(f"lat_first, dlat: the grid's latitudes {lat_first}..{last} leave [-90, 90]")
+        if arr.shape[1] * dlon > 360.0 * (1 + 1e-12):
+            # (a 500-degree image was taken, and its columns wrapped onto each other: pixel (0, 0)
+            # sampled as 3.6 where it holds 0, a review; a GeodeticDSM refuses it)
+            raise ValueError(f"ncols * dlon = {arr.shape[1] * dlon} degrees exceeds 360")
         self = object.__new__(cls)
         v = arr.astype(np.float64, copy=True)
         if nodata is not None:
+            from .dsm import _nodata_cells
+
             nodata = _number(nodata, "nodata")
-            v[v == nodata] = np.nan
+            v[_nodata_cells(arr, nodata)] = np.nan            # (in the data's own precision: float32)
         v.flags.writeable = False
         self._v = v
         self.dtype = arr.dtype
         self.lat_first, self.lon_first, self.dlat, self.dlon = lat_first, lon_first, dlat, dlon
         self.nodata = nodata
         self.path = None
+        #: semi-major axis (metres) of the body of the file's CRS (None: from an array); simulate_image
+        #: checks it against the DSM's
+        self.semi_major = None
         return self
 
     values = property(lambda self: self._v, doc="the image, float64 (read-only), NaN where no data")
@@ -181,9 +224,19 @@ class OrthoImage:
         return _grid_coords(lat, lon, self.lat_first, self.lon_first, self.dlat, self.dlon, self.shape[1])
 
     def sample(self, lat, lon) -> np.ndarray:
-        """Bilinear value at geodetic (lat, lon), degrees: shape of lat (+ (bands,)
-        for a multi-band image); NaN outside the rectangle of pixel centres or
-        where a needed pixel has no data."""
+        """Bilinear value at geodetic (lat, lon), degrees: their broadcast shape (+
+        (bands,) for a multi-band image); the edge pixels' values over the image's
+        outer half pixel; NaN beyond its bounds or where a needed pixel has no data."""
+        arrs = []
+        for name, x in (("lat", lat), ("lon", lon)):
+            a = np.asarray(x)
+            if a.dtype.kind not in "fiu":
+                raise TypeError(f"{name}: must be real numbers (degrees), got dtype {a.dtype}")
+            arrs.append(a.astype(np.float64))
+        try:
+            lat, lon = np.broadcast_arrays(*arrs)
+        except ValueError:
+            raise ValueError(f"lat and lon: shapes {arrs[0].shape} and {arrs[1].shape} do not broadcast") from None
         u, v = self.grid_coords(lat, lon)
         return _bilinear(self._v, u, v)
 
@@ -199,8 +252,11 @@ class OrthoImage:
 
         A geographic CRS is read as it is (axis-aligned transform); a projected
         CRS is warped bilinearly to a geodetic grid of about the same resolution.
-        The file is only read.
+        Cells that the file's mask band marks invalid are no data; an alpha band
+        is read as that mask, not as a band of brightness. The file is only read.
         """
+        if not isinstance(path, (str, os.PathLike)):
+            raise TypeError(f"path must be a file's path (str or pathlib.Path), got {type(path).__name__} {path!r}")
         path = Path(path)
         if path.is_dir():
             raise ValueError(f"ortho-image file {path}: is a directory, not a raster or .npz file")
@@ -208,6 +264,10 @@ class OrthoImage:
             raise FileNotFoundError(f"ortho-image file {path}: no such file")
         if path.suffix.lower() == ".npz":
             d = _npz_arrays(path, ("values", "lat_first", "lon_first", "dlat", "dlon"), "ortho-image file")
+            for key in ("lat_first", "lon_first", "dlat", "dlon"):
+                if np.ndim(d[key]) != 0 or d[key].dtype.kind not in "fiu":
+                    # (a string '1' was taken, an array gave NumPy's message without the name: a review)
+                    raise ValueError(f"ortho-image file {path}: {key} must be a single number, got {d[key]!r}")
             try:
                 o = cls.from_array(d["values"], float(d["lat_first"]), float(d["lon_first"]), float(d["dlat"]),
                                    float(d["dlon"]), nodata=nodata)
@@ -225,25 +285,45 @@ class OrthoImage:
         except Exception as exc:  # noqa: BLE001
             raise ValueError(f"ortho-image file {path}: cannot be opened as a raster ({exc})") from None
         with src:
+            from rasterio.enums import ColorInterp
+
+            from .dsm import _geodetic_grid, _geographic_datum, _mask_band, _nodata_cells, _short
+
+            nd = _file_nodata(nodata, src.nodata)
+            # an alpha band is the mask of the others, not brightness (an RGBA file was read as four
+            # bands, its transparent pixels as values: a review)
+            keep = [b for b in range(1, src.count + 1) if src.colorinterp[b - 1] != ColorInterp.alpha]
+            if not keep:
+                raise ValueError(f"ortho-image file {path}: has only alpha bands, no brightness")
+            try:
+                data = src.read(keep)                           # (bands, rows, cols)
+                invalid = np.stack([_mask_band(src, b) for b in keep])
+            except Exception as exc:  # noqa: BLE001
+                raise ValueError(f"ortho-image file {path}: cannot be read (truncated or corrupt?): "
+                                 f"{_short(exc)}") from None
             if src.crs is None:
                 raise ValueError(f"ortho-image file {path}: no CRS (a geographic or projected CRS is needed)")
-            nd = _file_nodata(nodata, src.nodata)
-            data = src.read()                                   # (bands, rows, cols)
+            if data.dtype.kind not in "fiu":
+                raise ValueError(f"ortho-image file {path}: holds {data.dtype} values, not real numbers")
+            if nd is not None:
+                invalid |= _nodata_cells(data, nd)              # (in the data's own precision)
+            nd_file, nd = nd, None
             dtype = data.dtype
-            from .dsm import _geodetic_grid, _geographic_datum
+            self_body = _crs_semi_major(src.crs)
 
             if src.crs.is_geographic and _geographic_datum(src.crs, src.bounds, path, "ortho-image") == "as-is":
                 t = src.transform
                 if t.b != 0 or t.d != 0:
                     raise ValueError(f"ortho-image file {path}: rotated or sheared pixel grid is not supported")
-                values = np.moveaxis(data, 0, -1).astype(np.float64)
+                values = data.astype(np.float64)
+                values[invalid] = np.nan
+                values = np.moveaxis(values, 0, -1)
             else:
                 dst_crs, tr, w, h = _geodetic_grid(src, path, "ortho-image", ValueError)
                 src_f = data.astype(np.float64)
-                if nd is not None:
-                    src_f[src_f == nd] = np.nan
-                values = np.full((src.count, h, w), np.nan)
-                for b in range(src.count):
+                src_f[invalid] = np.nan
+                values = np.full((len(keep), h, w), np.nan)
+                for b in range(len(keep)):
                     reproject(src_f[b], values[b], src_transform=src.transform, src_crs=src.crs, src_nodata=np.nan,
                               dst_transform=tr, dst_crs=dst_crs, dst_nodata=np.nan,
                               resampling=Resampling.bilinear)
@@ -258,6 +338,8 @@ class OrthoImage:
             raise ValueError(f"ortho-image file {path}: {exc}") from None
         o.dtype = dtype
         o.path = path
+        o.semi_major = self_body
+        o.nodata = nd_file
         return o
 
 
@@ -609,7 +691,8 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
         # (they were ignored without a word: a review)
         raise ValueError(f"sun and ambient apply only with shading='lambert' (got shading={shading!r}, "
                          f"sun={sun!r}, ambient={ambient!r})")
-    fill = float(fill) if isinstance(fill, (int, float, np.floating, np.integer)) else _number(fill, "fill")
+    fill = float(fill) if isinstance(fill, (int, float, np.floating, np.integer)) and not \
+        isinstance(fill, (bool, np.bool_)) else _number(fill, "fill")
     if math.isfinite(fill) and abs(fill) > float(np.finfo(np.float32).max):
         raise ValueError(f"fill = {fill!r}: the image is float32, whose largest value is "
                          f"{float(np.finfo(np.float32).max):g} (NaN is allowed)")
@@ -628,6 +711,14 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
     if block_lines is not None:
         block_lines = int(block_lines)                # np.int8(100) overflowed in the block arithmetic
     check_threads(threads, 1)
+    if ortho.semi_major is not None and not _same_body(ortho.semi_major, dsm.a):
+        # (a Mars ortho-photo was draped on an Earth DSM without a word: a review)
+        raise ValueError(f"ortho: its file {ortho.path} is on a body of semi-major axis {ortho.semi_major:.10g} m, "
+                         f"the DSM's a = {dsm.a:.10g}: an ortho-image must be on the DSM's body")
+    npx = int(sensor.shape[0]) * int(sensor.shape[1])
+    if npx > MAX_PIXELS:
+        raise ValueError(f"sensor: {sensor.shape[0]:,} x {sensor.shape[1]:,} = {npx:,} pixels, more than "
+                         f"{MAX_PIXELS:,} (its backplanes alone would take ~{npx * 100 / 2**40:.3g} TiB)")
     orb = getattr(sensor, "orbit", None)
     if isinstance(orb, dict) and "a" in orb and "f" in orb:
         if not (math.isclose(orb["a"], dsm.a, rel_tol=1e-12) and math.isclose(orb["f"], dsm.f, rel_tol=1e-12,

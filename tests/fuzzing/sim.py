@@ -889,9 +889,11 @@ def simulate_case(r: R, seed: int) -> dict:
 
 
 def _bilinear_ref(spec_o, values, lat, lon):
-    """The contract's bilinear sample (written from DESIGN 9 / the docstring): NaN outside the
-    rectangle of pixel centres or where a needed pixel has no data; longitudes within 180 deg of
-    the grid's centre. Returns (value (N[, bands]), near_edge (N,) where rounding decides)."""
+    """The contract's bilinear sample (written from DESIGN 9 / the docstring): between pixel
+    centres, the edge pixels' values over the image's outer half pixel (its pixels are areas,
+    simulation-notes note 16), NaN beyond its bounds or where a needed pixel has no data;
+    longitudes within 180 deg of the grid's centre. Returns (value (N[, bands]), near_edge (N,)
+    where rounding decides)."""
     v = np.asarray(values, dtype=float)
     nr, nc = v.shape[:2]
     lat_first, lon_first, dlat, dlon = spec_o
@@ -900,9 +902,11 @@ def _bilinear_ref(spec_o, values, lat, lon):
     w = np.mod(lon - lon_c + 180.0, 360.0) - 180.0
     vv = (w + (lon_c - lon_first)) / dlon
     eps = 1e-6
-    near = (np.abs(u) < eps) | (np.abs(u - (nr - 1)) < eps) | (np.abs(vv) < eps) | (np.abs(vv - (nc - 1)) < eps)
-    inside = (u >= 0) & (u <= nr - 1) & (vv >= 0) & (vv <= nc - 1)
-    uu, vw = np.where(inside, u, 0.0), np.where(inside, vv, 0.0)
+    near = ((np.abs(u + 0.5) < eps) | (np.abs(u - (nr - 0.5)) < eps) | (np.abs(vv + 0.5) < eps)
+            | (np.abs(vv - (nc - 0.5)) < eps))
+    inside = (u >= -0.5) & (u <= nr - 0.5) & (vv >= -0.5) & (vv <= nc - 0.5)
+    uu = np.where(inside, np.clip(u, 0.0, nr - 1), 0.0)
+    vw = np.where(inside, np.clip(vv, 0.0, nc - 1), 0.0)
     i = np.clip(np.floor(uu).astype(int), 0, max(nr - 2, 0))
     j = np.clip(np.floor(vw).astype(int), 0, max(nc - 2, 0))
     fu, fv = uu - i, vw - j
