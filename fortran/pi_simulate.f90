@@ -67,7 +67,7 @@ contains
     type(ortho_t), intent(in) :: o
     real(dp), intent(in) :: lat, lon
     real(dp), intent(out) :: val(o%nb)
-    real(dp) :: u, v, fu, fv, dl, e
+    real(dp) :: u, v, fu, fv, dl, e, val0(o%nb)
     integer :: i, j, i1, j1
     if (abs(lon - o%lonc) <= pi) then
       v = (lon - o%lon0) / o%dlon                   ! column; exact at the pixel centres
@@ -89,6 +89,12 @@ contains
     fv = v - j
     i1 = min(i + 1, o%nrows - 1)
     j1 = min(j + 1, o%ncols - 1)
+    val = (1 - fu) * ((1 - fv) * o%v(:, j + 1, i + 1) + fv * o%v(:, j1 + 1, i + 1)) &
+          + fu * ((1 - fv) * o%v(:, j + 1, i1 + 1) + fv * o%v(:, j1 + 1, i1 + 1))
+    if (.not. any(ieee_is_nan(val))) return
+    val0 = val
+    ! a no-data pixel among the four: not needed when its weight is below ortho_edge_tol (then the
+    ! hit is on the other row or column to rounding; values with data are not moved by this)
     if (fu >= 1.0_dp - ortho_edge_tol) then
       i = i1
       fu = 0.0_dp
@@ -105,6 +111,7 @@ contains
     if (fv == 0.0_dp) j1 = j
     val = (1 - fu) * ((1 - fv) * o%v(:, j + 1, i + 1) + fv * o%v(:, j1 + 1, i + 1)) &
           + fu * ((1 - fv) * o%v(:, j + 1, i1 + 1) + fv * o%v(:, j1 + 1, i1 + 1))
+    val = merge(val, val0, ieee_is_nan(val0))                ! (bands with data keep their value)
   end subroutine ortho_sample
 
   !> Bilinear value of a grid shaped like the DSM at grid coordinates (u col,

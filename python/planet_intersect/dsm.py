@@ -1043,23 +1043,9 @@ def _check_depth(dsm: GeodeticDSM, s: np.ndarray, n2: np.ndarray | None = None) 
                          f"above the surface")
 
 
-def _ellipsoid_entering(s, l, a, f):
-    """First r >= 0 where s + r l enters the ellipsoid from outside (NaN if s is not outside it,
-    or the line never enters ahead): the ground of intersect_dsm's outside="ellipsoid"."""
-    b = a * (1 - f)
-    w = np.array([1 / a, 1 / a, 1 / b])
-    ls, ss = l * w, s * w
-    qa = np.sum(ls * ls, axis=1)
-    qb = np.sum(ls * ss, axis=1)
-    qc = np.sum(ss * ss, axis=1) - 1
-    disc = qb * qb - qa * qc
-    with np.errstate(invalid="ignore"):
-        r1 = (-qb - np.sqrt(disc)) / qa
-    return np.where((disc >= 0) & (qc > 0) & (r1 >= 0), r1, np.nan)
-
-
-def _ellipsoid_entry(s, l, a, f):
-    """First r >= 0 where s + r l meets the ellipsoid (NaN if never)."""
+def _ellipsoid_roots(s, l, a, f):
+    """(r1, r2, outside, real): the two roots r1 <= r2 of s + r l on the ellipsoid (a, f), NaN where
+    the line misses it; whether s lies outside it; whether the line meets it."""
     b = a * (1 - f)
     w = np.array([1 / a, 1 / a, 1 / b])
     ls, ss = l * w, s * w
@@ -1071,7 +1057,22 @@ def _ellipsoid_entry(s, l, a, f):
         sq = np.sqrt(disc)
         r1 = (-qb - sq) / qa
         r2 = (-qb + sq) / qa
+    return r1, r2, qc > 0, disc >= 0
+
+
+def _ellipsoid_entering(s, l, a, f):
+    """First r >= 0 where s + r l enters the ellipsoid from outside (NaN if s is not outside it,
+    or the line never enters ahead): the ground of intersect_dsm's outside="ellipsoid"."""
+    r1, _, outside, real = _ellipsoid_roots(s, l, a, f)
+    with np.errstate(invalid="ignore"):
+        return np.where(real & outside & (r1 >= 0), r1, np.nan)
+
+
+def _ellipsoid_entry(s, l, a, f):
+    """First r >= 0 where s + r l meets the ellipsoid (NaN if never)."""
+    r1, r2, _, real = _ellipsoid_roots(s, l, a, f)
     # the nearer root when s is outside, the exit root when s is inside the ellipsoid (a point below
     # h = 0 over a DSM of negative heights: it was given as r = 0, the focal point itself; a review)
-    r = np.where(r1 >= 0, r1, np.where(r2 >= 0, r2, np.nan))
-    return np.where(disc >= 0, r, np.nan)
+    with np.errstate(invalid="ignore"):
+        r = np.where(r1 >= 0, r1, np.where(r2 >= 0, r2, np.nan))
+    return np.where(real, r, np.nan)

@@ -85,18 +85,27 @@ def _bilinear(values, u, v):
     fu, fv = uu - i, vv - j
     i1 = np.minimum(i + 1, nr - 1)
     j1 = np.minimum(j + 1, nc - 1)
-    # on a centre's row or column (to ORTHO_EDGE_TOL): the other row or column has no weight, unread
-    up, left = fu >= 1.0 - ORTHO_EDGE_TOL, fv >= 1.0 - ORTHO_EDGE_TOL
-    i, j = np.where(up, i1, i), np.where(left, j1, j)
-    fu = np.where(up | (fu <= ORTHO_EDGE_TOL), 0.0, fu)
-    fv = np.where(left | (fv <= ORTHO_EDGE_TOL), 0.0, fv)
-    i1 = np.where(fu == 0.0, i, i1)
-    j1 = np.where(fv == 0.0, j, j1)
+
+    def interp(i, j, i1, j1, fu, fv):
+        if values.ndim == 3:
+            fu, fv = fu[..., None], fv[..., None]
+        with np.errstate(invalid="ignore"):
+            return ((1 - fu) * ((1 - fv) * values[i, j] + fv * values[i, j1])
+                    + fu * ((1 - fv) * values[i1, j] + fv * values[i1, j1]))
+
+    out = interp(i, j, i1, j1, fu, fv)
+    nan = np.isnan(out)
+    if nan.any():
+        # a no-data pixel among the four: not needed when its weight is below ORTHO_EDGE_TOL (values
+        # with data are not moved by this)
+        up, left = fu >= 1.0 - ORTHO_EDGE_TOL, fv >= 1.0 - ORTHO_EDGE_TOL
+        i2, j2 = np.where(up, i1, i), np.where(left, j1, j)
+        fu2 = np.where(up | (fu <= ORTHO_EDGE_TOL), 0.0, fu)
+        fv2 = np.where(left | (fv <= ORTHO_EDGE_TOL), 0.0, fv)
+        snapped = interp(i2, j2, np.where(fu2 == 0.0, i2, i1), np.where(fv2 == 0.0, j2, j1), fu2, fv2)
+        out = np.where(nan, snapped, out)
     if values.ndim == 3:
-        fu, fv, inside = fu[..., None], fv[..., None], inside[..., None]
-    with np.errstate(invalid="ignore"):
-        out = ((1 - fu) * ((1 - fv) * values[i, j] + fv * values[i, j1])
-               + fu * ((1 - fv) * values[i1, j] + fv * values[i1, j1]))
+        inside = inside[..., None]
     return np.where(inside, out, np.nan)
 
 
