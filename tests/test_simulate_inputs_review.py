@@ -165,3 +165,23 @@ def test_an_ortho_image_on_another_body_is_refused(tmp_path):
                                                    a=mdsm.a, f=mdsm.f), zenith=0.0, azimuth=90.0))
     sim = pi.simulate_image(mdsm, o, msensor, occlusion=False)
     assert np.all(sim.image[sim.ortho_value] == 7.0)
+
+
+def test_resampling_nearest_keeps_a_one_pixel_pattern(tmp_path):
+    # a one-pixel checkerboard of 50/150 in UTM: bilinear (the default) averages it toward 100 in
+    # the warp, "nearest" keeps every value one of the source's, right at the source's centres
+    a = np.where((np.add.outer(np.arange(60), np.arange(60)) % 2) == 0, 50.0, 150.0).astype("float32")
+    x0, y0 = 500000.0, 5000000.0
+    p = write(tmp_path / "chk.tif", a, "EPSG:32632", from_origin(x0, y0, 1.0, 1.0))
+    near = pi.OrthoImage.read(p, resampling="nearest")
+    smooth = pi.OrthoImage.read(p)
+    assert near.resampling == "nearest" and smooth.resampling == "bilinear"
+    assert set(np.unique(near.values[np.isfinite(near.values)])) == {50.0, 150.0}
+    to_geo = pyproj.Transformer.from_crs("EPSG:32632", "EPSG:4326", always_xy=True)
+    i, j = np.meshgrid(np.arange(5, 55), np.arange(5, 55), indexing="ij")
+    lon, lat = to_geo.transform(x0 + j + 0.5, y0 - i - 0.5)
+    uu, vv = near.grid_coords(lat, lon)
+    got = near.values[np.rint(uu).astype(int), np.rint(vv).astype(int)]
+    assert np.mean(got == a[i, j]) >= 0.9
+    with pytest.raises(ValueError, match="resampling must be 'bilinear' or 'nearest'"):
+        pi.OrthoImage.read(p, resampling="cubic")

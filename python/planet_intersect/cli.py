@@ -551,7 +551,11 @@ def _read_states_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | N
         toks = ln.replace(",", " ").split()
         bad = [tok for tok in toks if not number(tok)]
         if bad:
-            raise CLIError(f"states file {path}: data line {i + 1}: cannot read {bad[0]!r} as a number")
+            tok = bad[0] if len(bad[0]) <= 40 else bad[0][:40] + "..."
+            if not tok.isprintable() or "\ufffd" in tok:
+                # (a binary file's bytes were echoed into the message: a review)
+                raise CLIError(f"states file {path}: data line {i + 1} is not text (a binary file?)")
+            raise CLIError(f"states file {path}: data line {i + 1}: cannot read {tok!r} as a number")
         rows.append(toks)
     widths = {len(r) for r in rows}
     if len(widths) != 1:
@@ -618,11 +622,18 @@ def _footprint(args) -> int:
     parts = []
     t0 = time.perf_counter()
     for a in range(0, n, chunk):
-        parts.append(footprint(cells, R[a:a + chunk], v[a:a + chunk], zeta=args.zeta,
-                               flux_fraction=args.flux_fraction, occlusion=args.occlusion, threads=args.threads,
-                               airmass_model=args.airmass_model, H=args.scale_height,
-                               # (only when given: the km default is refused for a DEM in metres, grs-notes 19)
-                               **({"area": args.area} if args.area is not None else {})))
+        try:
+            parts.append(footprint(cells, R[a:a + chunk], v[a:a + chunk], zeta=args.zeta,
+                                   flux_fraction=args.flux_fraction, occlusion=args.occlusion, threads=args.threads,
+                                   airmass_model=args.airmass_model, H=args.scale_height,
+                                   # (only when given: the km default is refused for a DEM in metres, grs-notes 19)
+                                   **({"area": args.area} if args.area is not None else {})))
+        except ValueError as exc:
+            # the API's keywords as this command's options (a review: "pass area=3.4e-3")
+            msg = re.sub(r"\bairmass_model=", "--airmass-model ", str(exc))
+            msg = re.sub(r"\barea=", "--area ", msg)
+            msg = re.sub(r"\bH=", "--scale-height ", msg)
+            raise CLIError(msg) from None
         bar(min(a + chunk, n))
     fp = _concat_footprints(parts, chunk)
     elapsed = time.perf_counter() - t0
@@ -638,10 +649,16 @@ def _footprint(args) -> int:
         # lengths in km where the DEM's radii can be km (grs-notes 19), else the DEM's own unit
         km = float(cells.radius_range[1]) <= fpm.KM_RADIUS_MAX
         ds = fp.to_xarray(length_unit="km" if km else None)
-        ds["R"] = (("spectrum", "xyz"), R)
-        ds["v"] = (("spectrum", "xyz"), v)
+        unit = "km" if km else "DEM length unit"
+        # (R, v and time had no attributes while every other variable had units and long_name: a review)
+        ds["R"] = (("spectrum", "xyz"), R, {"units": unit, "long_name": "spacecraft position, planet-fixed frame"})
+        ds["v"] = (("spectrum", "xyz"), v, {"units": f"{unit} per unit of time, as given",
+                                           "long_name": "spacecraft velocity, planet-fixed (only its direction "
+                                                        "is used)"})
         if t is not None:
-            ds["time"] = ("spectrum", np.asarray(t, dtype=np.float64))
+            ds["time"] = ("spectrum", np.asarray(t, dtype=np.float64),
+                          {"units": "as given" if args.states else "s (ET, TDB seconds past J2000)",
+                           "long_name": "time of the state vector"})
         ds.attrs.update(states=source, dem=dem_source)
         ds.to_netcdf(out / "footprint.nc", engine="h5netcdf")
         written.append(out / "footprint.nc")
@@ -733,7 +750,7 @@ def _add_footprint_parser(sub) -> None:
                    help="air mass of each pair (default chapman)")
     g.add_argument("--scale-height", type=float, default=None,
                    help="chapman's scale height H in the DEM's unit (default 10.8 km: Mars at 210 K)")
-    g.add_argument("--occlusion", action="store_true", help="also remove cells hidden by terrain (exact ray casting)")
+    g.add_argument("--occlusion", action="store_true", help="also test each pair's line of sight against the terrain (exact ray casting): hidden pairs are kept, with visible = 0")
     g.add_argument("--color", choices=("solid_angle", "emission"), default="solid_angle", help="map colouring")
     g.add_argument("--threads", type=int, default=0, help="OpenMP threads (default 0: all cores)")
     g.add_argument("--chunk", type=int, default=50, help="spectra per call (progress is shown between chunks)")
@@ -930,7 +947,7 @@ def _simulate(args) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         dsm = GeodeticDSM.read(args.dsm, interpolation=args.interpolation)
-        ortho = OrthoImage.read(args.ortho)
+        ortho = OrthoImage.read(args.ortho, resampling=args.ortho_resampling)
     for w in _notes(caught):                    # what the readers say of the files, one line each
         print(f"simulate: note: {w.message}", file=sys.stderr)
     sensor = _sensor_from_args(args, dsm, None)
@@ -998,6 +1015,8 @@ def _add_simulate_parser(sub) -> None:
                     "simulated.nc (NetCDF of image, lat, lon, height, distance, incidence, surface, masks).")
     s.add_argument("--dsm", help="DSM GeoTIFF or .npz (heights above WGS-84, metres)")
     s.add_argument("--ortho", help="ortho-image GeoTIFF or .npz (one band or RGB)")
+    s.add_argument("--ortho-resampling", choices=("bilinear", "nearest"), default="bilinear",
+                   help="how an ortho-image in a projected CRS is warped to a geodetic grid (default bilinear)")
     s.add_argument("--geometry", help=".npz with the sensor's rays (see above)")
     s.add_argument("--oblique", type=_pair, default=None, metavar="ZENITH,AZIMUTH",
                    help="pushbroom over the DSM grid viewing at ZENITH deg from AZIMUTH (deg from north; "

@@ -25,6 +25,8 @@ numbered note in ``docs/grs-notes.md``; ``[note N]`` marks the line.
 from __future__ import annotations
 
 import math
+import os
+import warnings
 import weakref
 from dataclasses import dataclass, field, fields
 
@@ -217,6 +219,17 @@ _CELL_CACHE: "weakref.WeakKeyDictionary[DEM, dict]" = weakref.WeakKeyDictionary(
 #: bytes per cell of a CellTable (its arrays) and the largest table built
 _CELL_BYTES = 8 * 26
 _CELL_TABLE_MAX_BYTES = 16e9
+#: the build's peak over its arrays' bytes (2.28 GB at 0.1 deg for 1.35 GB of arrays: 1.7, a
+#: review; a 0.03 deg table passed the 16 GB check and ran out of memory deep in NumPy)
+_CELL_PEAK_FACTOR = 2.0
+
+
+def _physical_memory() -> float:
+    """Bytes of physical memory (inf when the system does not say)."""
+    try:
+        return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return math.inf
 
 
 class CellTable:
@@ -271,9 +284,12 @@ class CellTable:
             raise ValueError(f"cell_deg must divide 180 (0.5, 1, 0.25, ...), got {cell_deg}")
         cell_deg = 180.0 / nrow
         need = 2 * nrow * nrow * _CELL_BYTES
-        if need > _CELL_TABLE_MAX_BYTES:
-            raise ValueError(f"cell_deg = {cell_deg:g} makes {2 * nrow * nrow:,} cells, about {need / 1e9:.0f} GB "
-                             f"of cell table (the limit is {_CELL_TABLE_MAX_BYTES / 1e9:.0f} GB): use larger cells")
+        limit = min(_CELL_TABLE_MAX_BYTES, 0.75 * _physical_memory() / _CELL_PEAK_FACTOR)
+        if need > limit:
+            raise ValueError(f"cell_deg = {cell_deg:g} makes {2 * nrow * nrow:,} cells, about {need / 1e9:.1f} GB "
+                             f"of cell table and ~{_CELL_PEAK_FACTOR * need / 1e9:.0f} GB while it is built (the "
+                             f"limit here is {limit / 1e9:.1f} GB of table: at most 16 GB, and 3/4 of this machine's "
+                             f"memory for the build): use larger cells")
         self.dem = dem
         self.cell_deg = cell_deg
         self.nrow = nrow
@@ -326,6 +342,9 @@ class CellTable:
         for name in ("r", "normal", "normal_detic"):
             data[name] = (("cell", "xyz"), getattr(self, name))
         ds = xr.Dataset(data, coords={"cell": np.arange(len(self)), "xyz": ["x", "y", "z"]})
+        # units and long_name on every variable, as FootprintResult.to_xarray has (none here: a review)
+        for name, (units, long_name) in _CELL_XARRAY_ATTRS.items():
+            ds[name].attrs.update(units=units, long_name=long_name)
         ds.attrs.update(cell_deg=self.cell_deg, nrow=self.nrow, ncol=self.ncol, re=self.dem.re, f=self.dem.f,
                         angles="degrees; lat areocentric, lat_detic areodetic, lon east [0, 360)",
                         normal="least-squares plane in (lat, lon, r) through the DEM samples in the cell",
@@ -882,7 +901,16 @@ def airmass(z_deg, H: float | None = None, R: float | np.ndarray | None = None, 
             x = sec - 0.0018167 * s1 - 0.002875 * s1 ** 2 - 0.0008083 * s1 ** 3       # Hardie (1962)
             # beyond its peak (87.15 deg) the fit falls, to -2.5e7 near 90 deg: NaN [note 20]
             x = np.where(s1 > _HARDIE_S_PEAK, np.nan, x)
-    return np.where(z >= 90.0, np.nan, x)
+    x = np.where(z >= 90.0, np.nan, x)
+    if model == "notes":
+        with np.errstate(invalid="ignore"):
+            neg = int(np.count_nonzero(x < 0))
+        if neg:
+            # as printed, and documented; a CLI run wrote 9,144 negative air masses without a word (a review)
+            warnings.warn(f"airmass model 'notes' (the series exactly as printed, docs/grs-notes.md note 4) is "
+                          f"negative at {neg:,} of the zenith angles (from ~85 deg): 'chapman' or 'hardie' "
+                          f"give physical values", UserWarning, stacklevel=2)
+    return x
 
 
 # ----------------------------------------------------------------------------------------
@@ -1069,7 +1097,7 @@ class FootprintResult:
         used, col = np.unique(self.cell, return_inverse=True)
         ns = self.n_spectra
         data = {}
-        for name in _PAIR_FIELDS[3:] + ("airmass",):
+        for name in _PAIR_FIELDS[2:] + ("airmass",):
             value = getattr(self, name)
             if name == "visible":
                 grid = np.zeros((ns, len(used)), dtype=bool)
@@ -1077,6 +1105,10 @@ class FootprintResult:
                 grid = np.full((ns, len(used)) + value.shape[1:], np.nan)
             grid[self.spectrum, col] = value
             data[name] = (("spectrum", "cell", "xyz"), grid) if value.ndim == 2 else (("spectrum", "cell"), grid)
+        # (visible=False also meant "not in the footprint" there, like "hidden by terrain": a review)
+        inside = np.zeros((ns, len(used)), dtype=bool)
+        inside[self.spectrum, col] = True
+        data["in_footprint"] = (("spectrum", "cell"), inside)
         data["zeta"] = ("spectrum", self.zeta)
         coords = {"spectrum": np.arange(ns), "cell": used, "xyz": ["x", "y", "z"],
                   "lat": ("cell", self.cells.lat[used]), "lon": ("cell", self.cells.lon[used])}
@@ -1099,6 +1131,24 @@ class FootprintResult:
 #: units of the lengths in to_xarray when the caller does not name the DEM's unit
 _DEM_LENGTH_UNIT = "DEM length unit"
 
+#: CellTable.to_xarray's per-variable attributes (lengths in the DEM's unit, which it does not record)
+_CELL_XARRAY_ATTRS = {
+    "lat": ("degrees_north", "areocentric latitude of the cell centre"),
+    "lon": ("degrees_east", "east longitude of the cell centre"),
+    "lat_detic": ("degrees_north", "areodetic latitude of the cell's centre point r"),
+    "lat_detic_spheroid": ("degrees_north", "areodetic latitude of the spheroid point at the centre's areocentric "
+                                            "latitude"),
+    "radius": ("DEM length unit", "the cell's mean radius r0 (fitted plane at the centre)"),
+    "radius_dem": ("DEM length unit", "the DEM's bilinear radius at the cell centre"),
+    "area": ("DEM length unit squared", "area of the cell's latitude/longitude box on the sphere of radius r0"),
+    "slope": ("degree", "angle between the cell's topographic normal and the spheroid normal normal_detic"),
+    "r": ("DEM length unit", "cell centre point r0 u, planet-fixed frame"),
+    "normal": ("1", "unit outward normal of the cell's fitted surface, planet-fixed frame"),
+    "normal_detic": ("1", "unit spheroid normal at (lat_detic, lon), planet-fixed frame"),
+    "cell": ("1", "index of the cell in the table, row-major from the south-west"),
+    "xyz": ("1", "vector component"),
+}
+
 #: to_xarray's per-variable attributes: (units, "L" = the DEM's length unit, None for none; long_name)
 _XARRAY_ATTRS = {
     "d": ("L", "cell centre to spacecraft, R - r_C, planet-fixed frame"),
@@ -1114,16 +1164,18 @@ _XARRAY_ATTRS = {
     "azimuth": ("degree", "direction of the cell in the spacecraft frame, from +y (forward) toward +z (left), "
                           "[0, 360)"),
     "elevation": ("degree", "elevation of the cell above the spacecraft frame's y-z plane"),
-    "visible": (None, "line of sight not blocked by terrain (all True without occlusion)"),
+    "visible": ("1", "line of sight not blocked by terrain (all True without occlusion); dense layout: "
+                     "False also where the cell is not in the footprint (see in_footprint)"),
+    "in_footprint": ("1", "the cell is in the spectrum's footprint (dense layout)"),
     "zeta": ("1", "cos psi threshold of the footprint cone, per spectrum"),
     "lat": ("degrees_north", "areocentric latitude of the cell centre"),
     "lon": ("degrees_east", "east longitude of the cell centre"),
-    "pair_spectrum": (None, "index of the pair's spectrum (state vector)"),
-    "pair_cell": (None, "index of the pair's cell in the cell table"),
-    "spectrum": (None, "index of the spectrum (state vector)"),
-    "cell": (None, "index of the cell in the cell table"),
-    "pair": (None, "index of the (spectrum, cell) pair"),
-    "xyz": (None, "vector component"),
+    "pair_spectrum": ("1", "index of the pair's spectrum (state vector)"),
+    "pair_cell": ("1", "index of the pair's cell in the cell table"),
+    "spectrum": ("1", "index of the spectrum (state vector)"),
+    "cell": ("1", "index of the cell in the cell table"),
+    "pair": ("1", "index of the (spectrum, cell) pair"),
+    "xyz": ("1", "vector component"),
 }
 
 
@@ -1309,10 +1361,15 @@ def footprint(cells: CellTable, R, v=None, area: float = _AREA_DEFAULT, zeta: fl
         given in the DEM's unit squared (3.4e-3 for metres) [note 19].
     zeta : float, optional
         Footprint cone: cells with cos psi >= zeta (psi the nadir angle),
-        within [-1, 1]. Default (and zeta <= 0): every cell above its horizon.
+        within [-1, 1]. Default (and zeta <= 0): every cell above its horizon, the
+        plane through the cell centre normal to its radius vector (areocentric, not
+        the spheroid's or the terrain's normal: on the Mars spheroid that takes cells
+        up to 0.26 deg behind the true horizon and leaves out a few in front of it,
+        3.7e-5 of the flux; docs/grs-notes.md note 7).
     flux_fraction : float, optional
         Instead of zeta: per spectrum, the zeta whose cone holds this fraction
-        (0 < q <= 1) of the total flux of the visible cells, each weighted by
+        (0 < q <= 1) of the total flux of the cells above the horizon (hidden by
+        terrain or not: the cone is chosen before ``occlusion``), each weighted by
         ``area_cell * max(cos emission, 0) * solid_angle`` (an isotropically
         radiating surface seen by the detector) [note 6]. ``fp.zeta`` gives the
         value used; the cells taken are those with nadir angle up to the first
@@ -1401,8 +1458,14 @@ def footprint(cells: CellTable, R, v=None, area: float = _AREA_DEFAULT, zeta: fl
         z = 0.0 if zeta is None else _real(zeta, "zeta", lo=-1.0, hi=1.0)
         zeta_arr = np.full(len(R), z)
     # angles in degrees from the kernel (the same rounding as multiplying the radians afterwards)
-    idx, d, gsh, scal, buffers = _run_kernel(cells, R, frames, zeta_arr, area, int(threads), ascale=180.0 / math.pi,
-                                             buffers=getattr(out, "_buffers", None))
+    try:
+        idx, d, gsh, scal, buffers = _run_kernel(cells, R, frames, zeta_arr, area, int(threads),
+                                                 ascale=180.0 / math.pi, buffers=getattr(out, "_buffers", None))
+    except MemoryError:
+        # (NumPy's own message named neither the spectra nor the cells: a review)
+        raise MemoryError(f"footprint: {len(R):,} spectra over {len(cells):,} cells of {cells.cell_deg:g} deg do "
+                          f"not fit in memory: pass fewer spectra per call (chunks; out= reuses the memory), "
+                          f"a cone (zeta, flux_fraction) or larger cells") from None
     # the kernel's [0, 360) wraps leave a due-north PA (or a due-forward azimuth) at
     # 359.99999999999994 now and then: within four ulp of 360 is 0 [note 5]
     _snap_360(scal[:, 6])

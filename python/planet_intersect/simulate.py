@@ -209,6 +209,8 @@ class OrthoImage:
         #: semi-major axis (metres) of the body of the file's CRS (None: from an array); simulate_image
         #: checks it against the DSM's
         self.semi_major = None
+        #: how a projected file was warped ("bilinear", "nearest"; None: not warped)
+        self.resampling = None
         return self
 
     values = property(lambda self: self._v, doc="the image, float64 (read-only), NaN where no data")
@@ -255,17 +257,22 @@ class OrthoImage:
                 self.lon_first + np.arange(self.shape[1]) * self.dlon)
 
     @classmethod
-    def read(cls, path, nodata=None) -> "OrthoImage":
+    def read(cls, path, nodata=None, resampling: str = "bilinear") -> "OrthoImage":
         """Read an ortho-image from a GeoTIFF (all bands; rasterio) or an ``.npz``
         (arrays ``values``, ``lat_first``, ``lon_first``, ``dlat``, ``dlon``).
 
         A geographic CRS is read as it is (axis-aligned transform); a projected
-        CRS is warped bilinearly to a geodetic grid of about the same resolution.
+        CRS is warped to a geodetic grid of about the same ground resolution, with
+        ``resampling`` "bilinear" (default: a photo's texture, smooth) or
+        "nearest" (every value one of the source's: one-pixel patterns kept),
+        recorded in ``ortho.resampling``.
         Cells that the file's mask band marks invalid are no data; an alpha band
         is read as that mask, not as a band of brightness. The file is only read.
         """
         if not isinstance(path, (str, os.PathLike)):
             raise TypeError(f"path must be a file's path (str or pathlib.Path), got {type(path).__name__} {path!r}")
+        if resampling not in ("bilinear", "nearest"):
+            raise ValueError(f"resampling must be 'bilinear' or 'nearest', got {resampling!r}")
         path = Path(path)
         if path.is_dir():
             raise ValueError(f"ortho-image file {path}: is a directory, not a raster or .npz file")
@@ -319,6 +326,7 @@ class OrthoImage:
             nd_file, nd = nd, None
             dtype = data.dtype
             self_body = _crs_semi_major(src.crs)
+            warped = None
 
             if src.crs.is_geographic and _geographic_datum(src.crs, src.bounds, path, "ortho-image") == "as-is":
                 t = src.transform
@@ -329,13 +337,14 @@ class OrthoImage:
                 values = np.moveaxis(values, 0, -1)
             else:
                 dst_crs, tr, w, h = _geodetic_grid(src, path, "ortho-image", ValueError)
+                warped = resampling
                 src_f = data.astype(np.float64)
                 src_f[invalid] = np.nan
                 values = np.full((len(keep), h, w), np.nan)
                 for b in range(len(keep)):
                     reproject(src_f[b], values[b], src_transform=src.transform, src_crs=src.crs, src_nodata=np.nan,
                               dst_transform=tr, dst_crs=dst_crs, dst_nodata=np.nan,
-                              resampling=Resampling.bilinear)
+                              resampling=getattr(Resampling, resampling))
                 values = np.moveaxis(values, 0, -1)
                 nd = None
                 t = tr
@@ -349,6 +358,7 @@ class OrthoImage:
         o.path = path
         o.semi_major = self_body
         o.nodata = nd_file
+        o.resampling = warped
         return o
 
 

@@ -520,12 +520,19 @@ from .sim import OPS as _SIM_OPS  # noqa: E402  (the image simulation's operatio
 OPS.update(_SIM_OPS)
 
 
+def documented_warning(w) -> bool:
+    """A warning the package documents as its answer, not a fault: airmass(model="notes") where the
+    notes' series as printed is negative (docs/grs-notes.md notes 4 and 21)."""
+    return issubclass(w.category, UserWarning) and str(w.message).startswith("airmass model 'notes'")
+
+
 def run_case(case: dict) -> dict:
     """Perform one case in a fresh temporary folder; warnings are property violations."""
     with tempfile.TemporaryDirectory(prefix="pifuzz-") as d, warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         info = OPS[case["op"]](case, Path(d))
-        caught = [w for w in caught if not issubclass(w.category, (DeprecationWarning, ResourceWarning))]
+        caught = [w for w in caught if not issubclass(w.category, (DeprecationWarning, ResourceWarning))
+                  and not documented_warning(w)]
         if caught:
             w = caught[0]
             fail(f"a {w.category.__name__} was emitted: {w.message} ({os.path.basename(w.filename)}:{w.lineno})")

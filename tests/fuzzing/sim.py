@@ -1089,29 +1089,40 @@ def _on_node_line_by_nodata(sensor, st, dsm) -> bool:
     2026-12-05 (seed 7500): a nadir sensor 10 m from Mars's south pole exactly on a column's
     centre meridian, its N-S line of rays down that node line; the build of 2026-12-04 (b49f058)
     gives the same STEP_LIMIT."""
-    if dsm.interpolation != "bilinear" or dsm.ncols * abs(dsm.dlon) >= 359.0:
-        return False
     s, l = _step_limit_rays(sensor, st)
+    return bool(_rays_on_node_column_by_nodata(s, l, dsm).all())
+
+
+def _rays_on_node_column_by_nodata(s, l, dsm) -> np.ndarray:
+    """Per ray (s, l rows): it lies in the meridian half-plane of one of a bilinear DSM's node
+    columns (1e-9 cells, 1e-14 relative) with a no-data node in that column or a neighbour. On such a
+    line the lookup puts the ray's points on either side by rounding, over the data cell or the
+    no-data one, so the answer (HIT, NO_DATA, LEFT_DSM or STEP_LIMIT) may depend on which points a
+    search evaluates: a line sweep and the same ray alone may differ (seed 7591: a nadir pixel
+    1.4e-10 cells west of a node column, HIT over the data cell in the image, NO_DATA 1.27 m earlier
+    over the no-data cell from intersect; shin-park-notes note 20)."""
+    out = np.zeros(len(s), dtype=bool)
+    if dsm.interpolation != "bilinear" or dsm.ncols * abs(dsm.dlon) >= 359.0:
+        return out
     h = np.asarray(dsm.heights, dtype=np.float64)
     if dsm.nodata is not None:
         h = np.where(h == dsm.nodata, np.nan, h)
-    for sk, lk in zip(s, l):
+    for k, (sk, lk) in enumerate(zip(s, l)):
         rho = np.hypot(sk[0], sk[1])
         if not rho > 0:
-            return False
+            continue
         lon = np.degrees(np.arctan2(sk[1], sk[0]))
         u = ((lon - dsm.lon_first) / dsm.dlon) % (360.0 / abs(dsm.dlon))
         j = int(round(u))
         if not (abs(u - j) <= 1e-9 and 0 <= j < dsm.ncols):
-            return False
+            continue
         lam = np.radians(dsm.lon_first + j * dsm.dlon)
         east = np.array([-np.sin(lam), np.cos(lam), 0.0])
         lu = lk / np.linalg.norm(lk)
         if not (abs(east @ sk) <= 1e-14 * np.linalg.norm(sk) and abs(east @ lu) <= 1e-14):
-            return False
-        if not np.isnan(h[:, max(j - 1, 0):j + 2]).any():
-            return False
-    return True
+            continue
+        out[k] = bool(np.isnan(h[:, max(j - 1, 0):j + 2]).any())
+    return out
 
 
 def _new_path(tmp, stem, suffix=""):
@@ -1215,11 +1226,18 @@ def op_simulate(case, tmp):
     ref = pi.intersect(dsm, s, l, method=method)
     calls += 1
     rst = np.asarray(ref.status).reshape(nl, npx)
-    if not np.array_equal(rst, st):
-        k = np.argwhere(rst != st)[0]
-        fail(f"pixel {tuple(k.tolist())}: status {st[tuple(k)]} in the image, {rst[tuple(k)]} from intersect "
+    differ = (rst != st).ravel()
+    flicker = np.zeros(nl * npx, dtype=bool)
+    if differ.any() and method == "exact":
+        # the documented ambiguity down a node column beside no-data: either answer is the lookup's
+        flicker[differ] = _rays_on_node_column_by_nodata(np.asarray(s, dtype=float)[differ],
+                                                         np.asarray(l, dtype=float)[differ], dsm)
+        flicker &= np.isin(st.ravel(), (0, 9, 10, 14)) & np.isin(rst.ravel(), (0, 9, 10, 14))
+    if (differ & ~flicker).any():
+        k = np.unravel_index(int(np.flatnonzero(differ & ~flicker)[0]), (nl, npx))
+        fail(f"pixel {tuple(int(x) for x in k)}: status {st[k]} in the image, {rst[k]} from intersect "
              f"(method {method})")
-    hv = valid.ravel()
+    hv = valid.ravel() & ~flicker & (rst.ravel() == st.ravel())
     if hv.any():
         rp = np.asarray(ref.p)[hv]
         rd = np.asarray(ref.distance)[hv]
