@@ -54,6 +54,10 @@ def _new_run_dir(base: Path) -> Path:
             return d
         except FileExistsError:
             k += 1
+        except OSError as exc:
+            # (a folder that exists but takes no new entries, /sys/kernel: "[Errno 1] Operation not
+            # permitted" without the option's name, a review)
+            raise CLIError(f"--out {base}: cannot make {d.name} in it ({exc.strerror})") from None
 
 
 @contextmanager
@@ -1063,8 +1067,16 @@ def _add_simulate_parser(sub) -> None:
 # --- end simulate -------------------------------------------------------------------------------
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors, as every other error of the command line: its own printed the
+    whole usage block first, ~10 lines for --threads 1.5 (a review). Subcommands inherit it."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="planet-intersect",
+    p = _Parser(prog="planet-intersect",
                                 description="Where lines of sight meet a planet's DEM (Teanby 2008 ray stepping).")
     sub = p.add_subparsers(dest="command", required=True)
     d = sub.add_parser("demo", help="oblique view of a synthetic Mars with a shield volcano (built-in default)")

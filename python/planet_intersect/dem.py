@@ -161,6 +161,13 @@ def _check_parameters(ppd, rmax, f, re, where):
         raise DEMError(f"{where}: equatorial radius re = {re:g} is not within a factor {RE_RATIO_MAX:g} of "
                        f"rmax = {rmax:g}: the reference spheroid and the radii must be in one unit (re = 1, "
                        f"Table 1's placeholder, is exempt; with f = 0 it means 'no spheroid')")
+    if re == 1.0 and f != 0.0 and not (rmax / RE_RATIO_MAX <= re <= RE_RATIO_MAX * rmax):
+        # Table 1's placeholder means "no spheroid" only with f = 0; with a flattening it is a spheroid
+        # of radius 1 under radii of thousands: altitudes of 3389 km without a word (a review). The
+        # format allows it, so it is read, and said
+        warnings.warn(f"{where}: re = 1 with f = {f:g} is a reference spheroid of radius 1 under radii up to "
+                      f"rmax = {rmax:g}: altitude, sc and tangent_height are measured from it (give re in the "
+                      f"radii's unit, or f = 0 for Table 1's 'no spheroid')", UserWarning, stacklevel=3)
 
 
 def _check_rmax_tight(rmax: float, top: float, where: str) -> None:
@@ -485,9 +492,11 @@ class DEM:
         return self._map_poles
 
     def radii64(self) -> np.ndarray:
-        """The grid as a C-ordered float64 array (converted once and kept, read-only)."""
+        """The grid as a C-ordered float64 array (converted once and kept, read-only). A
+        file-backed DEM checks its file on every call, also when the copy is kept: after the
+        file changed, answers came from the old grid while ``dem.radii`` raised (a review)."""
+        self.check_file()
         if self._radii64 is None:
-            self.check_file()
             if self.path is not None:
                 r64 = np.empty((self.nlat, self.nlon))
                 for j in range(0, self.nlat, _BLOCK_ROWS):

@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import hashlib
 import os
+import urllib.error
 import urllib.request
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -64,6 +66,13 @@ def mola_dem(radius: str | os.PathLike | None = None, *, topography: str | os.Pa
     if (radius is None) == (topography is None):
         raise ValueError("give either a radius grid or a topography grid (with its areoid)")
     if radius is not None:
+        name = Path(radius).name.lower()
+        if name.startswith(("megt", "mega", "megc", "megn", "megb")):
+            # MEGDR names say what a grid holds (megr radius, megt topography, mega areoid, ...): a
+            # topography grid given as radii was converted without a word, off by the areoid (a review)
+            warnings.warn(f"{radius}: the name says a MEGDR '{name[:4]}' grid, not a radius grid ('megr'): it is "
+                          f"read as radii; a topography grid ('megt') goes with its areoid (topography=, "
+                          f"areoid=; --topography, --areoid)", UserWarning, stacklevel=2)
         metres = read_megdr(radius).astype(np.float64) + MEGDR_OFFSET_M
     else:
         if areoid is None:
@@ -97,6 +106,7 @@ def fetch_mola(dest: str | os.PathLike, product: str = "megr90n000cb", base_url:
         raise ValueError(f"product must be one of {', '.join(MEGDR_PRODUCTS)}, got {product!r}")
     folder, ppd = MEGDR_PRODUCTS[product]
     dest = Path(dest)
+    created = not dest.exists()
     dest.mkdir(parents=True, exist_ok=True)
     img = dest / f"{product}.img"
     expected = 180 * ppd * 360 * ppd * 2
@@ -122,9 +132,16 @@ def fetch_mola(dest: str | os.PathLike, product: str = "megr90n000cb", base_url:
             if size != expected:
                 raise OSError(f"download of {url} gave {size} bytes, expected {expected}")
             os.replace(part, img)
+        except urllib.error.URLError as exc:
+            # (the message was urllib's alone, "<urlopen error [Errno -2] Name or service not known>",
+            # and an empty DEST was left behind: a review)
+            raise OSError(f"download of {url} failed ({exc.reason}): check the network, or fetch the file "
+                          f"yourself and run import-mola on it") from None
         finally:
             if part.exists():
                 part.unlink()
+            if created and dest.is_dir() and not any(dest.iterdir()):
+                dest.rmdir()
     return import_mola(dest / f"mola_{product}", radius=img)
 
 

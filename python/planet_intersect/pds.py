@@ -168,6 +168,13 @@ def read_pds3_label(path: str | os.PathLike) -> dict:
     def bad(what):
         return PDSError(f"PDS label {path}: {what}")
 
+    head = raw.lstrip()[:64].upper()
+    if raw and not head.startswith(b"PDS_VERSION_ID") and not head.startswith(b"/*") and \
+            sum(32 <= b < 127 or b in (9, 10, 13) for b in raw[:512]) < 0.9 * min(len(raw), 512):
+        # a data file without an attached label (LOLA's LDEM_4.IMG): its bytes were parsed as a label and
+        # the message spoke of an unclosed comment at line 4735 (a review)
+        raise bad("no PDS label at the start of this file (an attached label begins with PDS_VERSION_ID): "
+                  "give the detached label, the .LBL file beside it")
     toks = _TOKEN.findall(_label_text(raw.decode("latin-1"), bad))
     root: dict = {}
     stack: list = [(root, None)]

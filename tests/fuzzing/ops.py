@@ -522,8 +522,11 @@ OPS.update(_SIM_OPS)
 
 def documented_warning(w) -> bool:
     """A warning the package documents as its answer, not a fault: airmass(model="notes") where the
-    notes' series as printed is negative (docs/grs-notes.md notes 4 and 21)."""
-    return issubclass(w.category, UserWarning) and str(w.message).startswith("airmass model 'notes'")
+    notes' series as printed is negative (docs/grs-notes.md notes 4 and 21); a DEM whose re = 1 (Table
+    1's placeholder) comes with a flattening under radii far from 1 (paper-notes note 25)."""
+    m = str(w.message)
+    return issubclass(w.category, UserWarning) and (m.startswith("airmass model 'notes'")
+                                                    or " re = 1 with f = " in m)
 
 
 def run_case(case: dict) -> dict:

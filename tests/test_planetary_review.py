@@ -1,0 +1,111 @@
+"""An independent review of the planetary DEM system (2026-12-05; paper-notes note 25). It
+found no wrong number (closed forms to 3.4e-9 km, the exact mode against its own march to
+4e-9 km over 1,500 rays); these are the gaps it found, each with the behaviour it now has.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import planet_intersect as pi
+from planet_intersect.dem import DEMError
+
+
+def _cli(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "planet_intersect", *map(str, args)], capture_output=True,
+                          text=True, timeout=300, cwd=cwd)
+
+
+def test_re_1_with_a_flattening_warns(tmp_path):
+    # Table 1's placeholder re = 1 means "no spheroid" only with f = 0: with f = 0.0059 under radii of
+    # 3390 km the altitudes were 3389 km without a word
+    (tmp_path / "re1.hdr").write_text("1\n3400\n0.0059\n1\n")
+    np.full((180, 360), 3390, np.float32).tofile(tmp_path / "re1.dem")
+    with pytest.warns(UserWarning, match=r"re = 1 with f = 0.0059 is a reference spheroid of radius 1"):
+        dem = pi.DEM.read(tmp_path / "re1.hdr")
+    assert pi.intersect(dem, [4000.0, 0, 0], [-1.0, 0, 0]).altitude[0] == pytest.approx(3389.0)
+    with pytest.warns(UserWarning, match="re = 1 with f = 0.0059"):
+        pi.DEM.from_array(np.full((180, 360), 3390.0), f=0.0059, re=1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        pi.DEM.from_array(np.full((180, 360), 3390.0), f=0.0059, re=3390.0)     # a real spheroid: no word
+        pi.DEM.from_array(np.full((180, 360), 1.0), f=0.1, re=1.0)              # radii in units of re: fine
+
+
+@pytest.mark.parametrize("method", ["stepping", "exact"])
+def test_a_changed_dem_file_is_refused_after_the_first_call(tmp_path, method):
+    pi.DEM.from_array(np.full((180, 360), 3390.0), f=0.0, re=3390.0).write(tmp_path / "n.hdr")
+    dem = pi.DEM.read(tmp_path / "n.hdr")
+    assert pi.intersect(dem, [4000.0, 0, 0], [-1.0, 0, 0], method=method).radius[0] == pytest.approx(3390.0)
+    size = (tmp_path / "n.dem").stat().st_size
+    np.full((180, 360), 3000, dem.radii.dtype).tofile(tmp_path / "n.dem")    # rewritten, same size
+    assert (tmp_path / "n.dem").stat().st_size == size
+    os.utime(tmp_path / "n.dem", ns=(1, 1))                                 # (a new mtime for sure)
+    with pytest.raises(DEMError, match="n.dem: it was replaced or rewritten since DEM.read"):
+        pi.intersect(dem, [4000.0, 0, 0], [-1.0, 0, 0], method=method)      # (3390 from the old grid before)
+    with pytest.raises(DEMError):
+        dem.radius(0.5, 0.5)
+
+
+def test_import_pds_on_a_data_file_asks_for_its_label(tmp_path):
+    img = tmp_path / "LDEM_X.IMG"
+    img.write_bytes(np.arange(4096, dtype=np.int16).tobytes() * 8)
+    r = _cli("import-pds", img, tmp_path / "out")
+    assert r.returncode == 2
+    assert "no PDS label at the start of this file" in r.stderr and ".LBL" in r.stderr
+    assert "comment" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_fetch_mola_offline_names_the_url_and_leaves_nothing(tmp_path):
+    from planet_intersect.mola import fetch_mola
+
+    dest = tmp_path / "fetch"
+    with pytest.raises(OSError, match=r"download of http://127\.0\.0\.1:9/.*megr90n000cb\.img failed .*import-mola"):
+        fetch_mola(dest, base_url="http://127.0.0.1:9/nothing", progress=None)     # a closed port
+    assert not dest.exists()                                  # (an empty DEST was left behind)
+
+
+def test_a_topography_grid_given_as_radii_warns(tmp_path):
+    from planet_intersect.mola import mola_dem
+
+    megt = tmp_path / "megt90n000cb.img"
+    (np.full((180, 360), -1000, dtype=">i2")).tofile(megt)
+    with pytest.warns(UserWarning, match=r"MEGDR 'megt' grid, not a radius grid"):
+        mola_dem(megt)
+    megr = tmp_path / "megr90n000cb.img"
+    (np.full((180, 360), -6000, dtype=">i2")).tofile(megr)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mola_dem(megr)
+
+
+def test_command_line_errors_are_one_line(tmp_path):
+    for args in (["run", "a.hdr", "b.txt", "--threads", "1.5"], ["nosuch"], ["demo", "--ppd", "x"]):
+        r = _cli(*args, cwd=tmp_path)
+        assert r.returncode == 2, args
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and "error:" in lines[0] and "--help" in lines[0], (args, r.stderr)
+
+
+def test_run_into_a_folder_that_takes_no_entries_names_out(tmp_path, monkeypatch):
+    from planet_intersect import cli
+
+    base = tmp_path / "o"
+    base.mkdir()
+    real_mkdir = Path.mkdir
+
+    def no_entries(self, *a, **k):
+        if self.parent == base:
+            raise PermissionError(1, "Operation not permitted")
+        return real_mkdir(self, *a, **k)
+
+    monkeypatch.setattr(Path, "mkdir", no_entries)
+    with pytest.raises(cli.CLIError, match=r"--out .*/o: cannot make run-001 in it \(Operation not permitted\)"):
+        cli._new_run_dir(base)
