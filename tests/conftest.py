@@ -128,3 +128,17 @@ def shared_data_or_skip(*parts) -> Path:
     if not p.exists():
         pytest.skip(f"real data not available: {p} is missing (set PI_SHARED_DATA to ../shared/data)")
     return p
+
+
+def write_geotiff(path, a, crs, transform, nodata=None, **kw):
+    """Write the array ``a`` ((rows, cols) or (bands, rows, cols)) as a GeoTIFF with rasterio (the
+    reviews' tests of the readers); returns ``path``."""
+    import rasterio
+
+    a = np.asarray(a)
+    with rasterio.open(path, "w", driver="GTiff", width=a.shape[-1], height=a.shape[-2],
+                       count=1 if a.ndim == 2 else a.shape[0], dtype=a.dtype, crs=crs,
+                       transform=transform, nodata=nodata, **kw) as d:
+        d.write(a if a.ndim == 3 else a[None])
+    return path
+

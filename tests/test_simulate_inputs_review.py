@@ -17,14 +17,10 @@ rasterio = pytest.importorskip("rasterio", reason="rasterio (the [geo] extra) re
 pyproj = pytest.importorskip("pyproj", reason="pyproj places the warped pixels independently")
 from rasterio.transform import from_origin  # noqa: E402
 
+from conftest import write_geotiff  # noqa: E402
 
-def write(path, a, crs, transform, nodata=None, **kw):
-    a = np.asarray(a)
-    with rasterio.open(path, "w", driver="GTiff", width=a.shape[-1], height=a.shape[-2],
-                       count=1 if a.ndim == 2 else a.shape[0], dtype=a.dtype, crs=crs,
-                       transform=transform, nodata=nodata, **kw) as d:
-        d.write(a if a.ndim == 3 else a[None])
-    return path
+
+write = write_geotiff
 
 
 def test_the_outer_half_pixel_of_an_ortho_image_has_its_edge_values(tmp_path):
