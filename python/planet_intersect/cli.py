@@ -754,7 +754,9 @@ def _add_footprint_parser(sub) -> None:
                    help="air mass of each pair (default chapman)")
     g.add_argument("--scale-height", type=float, default=None,
                    help="chapman's scale height H in the DEM's unit (default 10.8 km: Mars at 210 K)")
-    g.add_argument("--occlusion", action="store_true", help="also test each pair's line of sight against the terrain (exact ray casting): hidden pairs are kept, with visible = 0")
+    g.add_argument("--occlusion", action="store_true",
+                   help="also test each pair's line of sight against the terrain (exact ray casting): "
+                        "hidden pairs are kept, with visible = 0")
     g.add_argument("--color", choices=("solid_angle", "emission"), default="solid_angle", help="map colouring")
     g.add_argument("--threads", type=int, default=0, help="OpenMP threads (default 0: all cores)")
     g.add_argument("--chunk", type=int, default=50, help="spectra per call (progress is shown between chunks)")

@@ -582,9 +582,10 @@ def _geodetic_grid(src, path, what: str, error, a=None, f=None):
     Earth in kilometres with 49 m buildings 49 km tall, where the geographic reader refuses (a review).
 
     Cells: the source's pixel size on the ground at the raster's centre (its projected size over
-    the projection's scale factors there), north-south and east-west separately (rasterio's default grid has square cells in degrees: at 72 N a 2 m raster became
-    5.1 m north-south, and one-pixel walls vanished, a review); for a raster in degrees, rasterio's
-    default. A raster across the antimeridian has, in EPSG:4326, a grid spanning -180..180 with
+    the projection's scale factors there), north-south and east-west separately (rasterio's
+    default grid has square cells in degrees: at 72 N a 2 m raster became 5.1 m north-south, and
+    one-pixel walls vanished, a review); for a raster in degrees, rasterio's default. A raster
+    across the antimeridian has, in EPSG:4326, a grid spanning -180..180 with
     zero rows (a 300 m UTM tile at 180 E crashed rasterio: a walk-through); the same datum with
     longitudes in [0, 360) keeps it whole, and GeodeticDSM and OrthoImage take grids that cross the
     antimeridian. Any failure is ``error`` naming the file."""

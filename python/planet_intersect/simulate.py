@@ -323,11 +323,10 @@ class OrthoImage:
                 raise ValueError(f"ortho-image file {path}: holds {data.dtype} values, not real numbers")
             if nd is not None:
                 invalid |= _nodata_cells(data, nd)              # (in the data's own precision)
-            nd_file, nd = nd, None
+            nd_file, nd = nd, None                              # (applied above, in the file's dtype)
             dtype = data.dtype
-            self_body = _crs_semi_major(src.crs)
+            semi_major = _crs_semi_major(src.crs)
             warped = None
-
             if src.crs.is_geographic and _geographic_datum(src.crs, src.bounds, path, "ortho-image") == "as-is":
                 t = src.transform
                 if t.b != 0 or t.d != 0:
@@ -346,7 +345,6 @@ class OrthoImage:
                               dst_transform=tr, dst_crs=dst_crs, dst_nodata=np.nan,
                               resampling=getattr(Resampling, resampling))
                 values = np.moveaxis(values, 0, -1)
-                nd = None
                 t = tr
         if values.shape[2] == 1:
             values = values[:, :, 0]
@@ -356,7 +354,7 @@ class OrthoImage:
             raise ValueError(f"ortho-image file {path}: {exc}") from None
         o.dtype = dtype
         o.path = path
-        o.semi_major = self_body
+        o.semi_major = semi_major
         o.nodata = nd_file
         o.resampling = warped
         return o
