@@ -98,6 +98,20 @@ def _count(value, name: str, lo: int = 1, hi: int = 10**8) -> int:
     return v
 
 
+#: most pixels (lines x pixels) a sensor may have: simulate_image's MAX_PIXELS (a million by a
+#: million was accepted, and failed on a 21.8 TiB allocation naming nothing: a review)
+MAX_SENSOR_PIXELS = 1 << 32
+#: most lines from_orbit builds (its frames take ~0.3 kB a line: 10**8 lines ran 13 s and failed on
+#: a MemoryError naming nothing, a review)
+MAX_ORBIT_LINES = 10**7
+
+
+def _pixels(nlines: int, npixels: int, names: str) -> None:
+    if nlines * npixels > MAX_SENSOR_PIXELS:
+        raise ValueError(f"{names}: {nlines:,} x {npixels:,} = {nlines * npixels:,} pixels, more than "
+                         f"{MAX_SENSOR_PIXELS:,}")
+
+
 def _shape(shape, name: str = "shape") -> tuple[int, int]:
     try:
         n = len(shape)
@@ -656,9 +670,16 @@ class Pushbroom(Sensor):
         gm = _num(gm, "gm", 0.0, lo_open=True)
         omega = _num(rotation_rate, "rotation_rate")
         altitude = _num(altitude, "altitude", 0.0, lo_open=True)
+        from .intersect import FAR_LIMIT
+
+        if altitude > FAR_LIMIT * a:
+            # (the focal points' check said "p[0] = [9.25e+29 ...] is farther than ...": a review)
+            raise ValueError(f"altitude = {altitude:g} is more than {FAR_LIMIT:g} semi-major axes (a = {a:g}): "
+                             f"a line of sight from there loses its position at the body to rounding")
         inc = math.radians(_num(inclination, "inclination", 0.0, 180.0))
         npixels = _count(npixels, "npixels")
-        nlines = _count(nlines, "nlines")
+        nlines = _count(nlines, "nlines", 1, MAX_ORBIT_LINES)
+        _pixels(nlines, npixels, "nlines x npixels")
         ifov = _num(ifov, "ifov (deg)", 0.0, 180.0, lo_open=True, hi_open=True)
         roll = math.radians(_num(roll, "roll (deg)", -90.0, 90.0, True, True))
         pitch = math.radians(_num(pitch, "pitch (deg)", -90.0, 90.0, True, True))
@@ -852,9 +873,10 @@ class FrameCamera(Sensor):
             shp = np.shape(position)
         except (TypeError, ValueError):                    # ragged: _array names it
             shp = None
-        if shp is not None and len(shp) == 1 and shp != (3,):
-            # (reshaped to (1, n) it was reported as "expected shape (n, 3), got (1, 2)": a review)
-            raise ValueError(f"position: expected shape (3,), got {shp}")
+        if shp is not None and shp not in ((3,), (1, 3)) and (len(shp) == 1 or (len(shp) == 2 and shp[1] == 3)):
+            # (reshaped to (1, n) it was reported as "expected shape (n, 3), got (1, 2)"; a (k, 3) array
+            # became a camera at its first row without a word, and (0, 3) an IndexError: reviews)
+            raise ValueError(f"position: expected shape (3,), got {shp} (a camera has one focal point)")
         self.position = _array(np.reshape(position, (1, -1)) if np.ndim(position) == 1 else position,
                                "position", (3,), 2)[0]
         self._l = _array(l, "l", (3,), 3)
@@ -931,6 +953,7 @@ class FrameCamera(Sensor):
         if not isinstance(geodetic, (bool, np.bool_)):
             raise TypeError(f"geodetic must be True or False, got {geodetic!r}")
         nrows, ncols = _shape(shape)
+        _pixels(nrows, ncols, "shape")
         ifov = _num(ifov, "ifov (deg)", 0.0, 180.0, lo_open=True, hi_open=True)
         rot = math.radians(_num(rotation, "rotation (deg)"))
         pts = []

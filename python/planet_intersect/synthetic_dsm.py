@@ -16,6 +16,8 @@ Everything is seeded: the same arguments give the same arrays.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .geodetic import WGS84_A, WGS84_F, geodetic_to_ecef
@@ -290,7 +292,23 @@ class ObliqueScan(Sensor):
     def __init__(self, scene: dict, zenith: float = 9.0, azimuth: float = 90.0, altitude: float = 685e3,
                  margin: int = 0, step: float = 1.0):
         h = np.asarray(scene["heights"])
+        if h.ndim != 2 or h.dtype.kind not in "fiu":
+            raise ValueError(f"scene['heights'] must be a 2-D array of numbers, got shape {h.shape}, dtype {h.dtype}")
         nr, nc = h.shape
+        # every number checked by name (azimuth=nan and altitude=inf gave NaN focal points reported
+        # later as "s[0] has NaN or Inf"; zenith="9" a TypeError from '<='; dlat=0 one row imaged by
+        # every line: a review)
+        for name, value in (("zenith", zenith), ("azimuth", azimuth), ("altitude", altitude), ("step", step),
+                            ("scene['lat_first']", scene["lat_first"]), ("scene['lon_first']", scene["lon_first"]),
+                            ("scene['dlat']", scene["dlat"]), ("scene['dlon']", scene["dlon"])):
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                    or not math.isfinite(float(value)):
+                raise ValueError(f"{name} must be a finite number, got {value!r}")
+        if scene["dlat"] == 0 or scene["dlon"] == 0:
+            raise ValueError(f"scene['dlat'] and scene['dlon'] must be non-zero, got {scene['dlat']!r}, "
+                             f"{scene['dlon']!r}")
+        if not np.isfinite(h).any():
+            raise ValueError("scene['heights'] has no finite height to aim the rays at")
         if not 0 <= zenith < 80:
             raise ValueError(f"zenith must be in [0, 80) degrees, got {zenith}")
         if not step > 0:
