@@ -26,7 +26,7 @@ subroutine zcalc_planet_intersect(n, s, l, demfile, dem_read_mode, step_mode, p,
   use pi_dem, only: dem_t, dem_open, dem_close
   use pi_intersect, only: intersect_packed
   use pi_spheroid, only: tangent_mode_paper
-  use pi_status, only: stat_ok, stat_bad_shape
+  use pi_status, only: stat_ok, stat_bad_shape, stat_bad_mode
   use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
   implicit none
   integer, intent(in) :: n, dem_read_mode, step_mode
@@ -44,6 +44,12 @@ subroutine zcalc_planet_intersect(n, s, l, demfile, dem_read_mode, step_mode, p,
     return
   end if
   p = nan; t = nan; tc = nan; sc = nan; emission = nan; istat = -1
+  ! the modes before the file: with a missing file and step_mode 5 the answer was 1 (no header)
+  ! and the bad mode was never named (a review)
+  if ((dem_read_mode /= 0 .and. dem_read_mode /= 1) .or. (step_mode /= 0 .and. step_mode /= 1)) then
+    ierr = stat_bad_mode
+    return
+  end if
   call dem_open(demfile, dem_read_mode, dem, ierr)
   if (ierr /= stat_ok) return
   allocate(scal(9, n), nsteps(n))
@@ -63,14 +69,21 @@ subroutine zdem_open(demfile, ppd, rmax, f, re, ierr)
   use pi_kinds, only: dp
   use pi_dem, only: dem_t, dem_open, dem_close
   use pi_status, only: stat_ok
+  use pi_ieee, only: nan_dp
   implicit none
   character(len=*), intent(in) :: demfile
   integer, intent(out) :: ppd, ierr
   real(dp), intent(out) :: rmax, f, re
   type(dem_t) :: dem
   call dem_open(demfile, 1, dem, ierr)
-  ppd = dem%ppd; rmax = dem%rmax; f = dem%f; re = dem%re
-  if (ierr == stat_ok) call dem_close(dem)
+  if (ierr == stat_ok) then
+    ppd = dem%ppd; rmax = dem%rmax; f = dem%f; re = dem%re
+    call dem_close(dem)
+  else
+    ! (partly parsed values were returned, 0 or defaults, where the project's missing value is
+    ! NaN: a review)
+    ppd = 0; rmax = nan_dp; f = nan_dp; re = nan_dp
+  end if
 end subroutine zdem_open
 
 !> Read the whole grid of `demfile` into radii(nlon, nlat), nlon = 360 ppd,
@@ -79,13 +92,14 @@ subroutine zdem_read(demfile, nlon, nlat, radii, ierr)
   use pi_kinds, only: dp
   use pi_dem, only: dem_t, dem_open, dem_close
   use pi_status, only: stat_ok, stat_bad_shape
+  use pi_ieee, only: nan_dp
   implicit none
   character(len=*), intent(in) :: demfile
   integer, intent(in) :: nlon, nlat
   real(dp), intent(out) :: radii(nlon, nlat)
   integer, intent(out) :: ierr
   type(dem_t) :: dem
-  radii = 0.0_dp
+  radii = nan_dp                               ! (0 on an error before: NaN is the missing value)
   call dem_open(demfile, 0, dem, ierr)
   if (ierr /= stat_ok) return
   if (dem%nlon /= nlon .or. dem%nlat /= nlat) then
@@ -350,14 +364,23 @@ end function pi_legacy_handle_sum
 
 !> Tangent point of the line s + a l on the spheroid (f, re) by the paper's
 !> construction, eqs. 54-58 (the paper's ztangent_ellipsoid): tc on the line,
-!> sc on the spheroid, d = |tc - sc| (negative when tc is inside).
+!> sc on the spheroid, d = |tc - sc| (negative when tc is inside). A zero or
+!> non-finite l has no line: tc, sc and d are NaN (they were tc = s and a finite
+!> d for l = 0, a review; zcalc_planet_intersect gives such a ray status 4).
 subroutine ztangent_ellipsoid(s, l, f, re, tc, sc, d)
   use pi_kinds, only: dp
   use pi_vector, only: unit_vector
   use pi_spheroid, only: tangent_paper
+  use pi_ieee, only: nan_dp, is_finite
   implicit none
   real(dp), intent(in) :: s(3), l(3), f, re
   real(dp), intent(out) :: tc(3), sc(3), d
+  if (.not. (all(is_finite(l)) .and. maxval(abs(l)) > 0.0_dp)) then
+    tc = nan_dp
+    sc = nan_dp
+    d = nan_dp
+    return
+  end if
   call tangent_paper(s, unit_vector(l), f, re, tc, sc, d)
 end subroutine ztangent_ellipsoid
 

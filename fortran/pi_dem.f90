@@ -120,7 +120,7 @@ contains
     logical, intent(out) :: swap
     integer, intent(out) :: stat
     character(len=:), allocatable :: text, line, key, val, tok
-    integer :: fd, ios, nval, k, pos, eol, n
+    integer :: fd, ios, nval, k, pos, eol, n, i, j
     integer(i8) :: nbytes
     integer(i1), allocatable :: raw(:)
     logical :: big, ok
@@ -154,13 +154,18 @@ contains
       ! one line: up to the next LF or CR (a CRLF leaves an empty line, skipped)
       eol = scan(text(pos:), achar(10)//achar(13))
       if (eol == 0) eol = n - pos + 2
-      line = strip(text(pos:pos + eol - 2))
+      ! (spans and substrings, no functions returning strings: gfortran kept the lengths of such
+      ! results in static variables, and headers read in threads came back with wrong values,
+      ! re = 3 for 3396.19 with stat 0, a review of the legacy interface)
+      call strip_span(text(pos:pos + eol - 2), i, j)
+      line = text(pos + i - 1:pos + j - 1)
       pos = pos + eol
       if (len(line) == 0) cycle
       if (line(1:1) == '#' .or. line(1:1) == '!') cycle
       if (nval < 4) then
         nval = nval + 1
-        tok = first_word(line)
+        call word_span(line, i, j)
+        tok = line(i:j)
         ios = 1
         select case (nval)
         case (1)
@@ -182,8 +187,12 @@ contains
           stat = stat_hdr_key
           exit
         end if
-        key = lower(strip(line(1:k-1)))
-        val = lower(first_word(line(k+1:)))
+        call strip_span(line(1:k-1), i, j)
+        key = line(i:j)
+        call to_lower(key)
+        call word_span(line(k+1:), i, j)
+        val = line(k + i:k + j)
+        call to_lower(val)
         if (key == 'dtype' .and. val == 'float32') then
           itemsize = 4
         else if (key == 'dtype' .and. val == 'float64') then
@@ -624,41 +633,41 @@ contains
     big = transfer(1_i4, 0_i1) == 0_i1
   end function native_big_endian
 
-  pure function lower(s) result(t)
-    character(len=*), intent(in) :: s
-    character(len=len(s)) :: t
+  !> s with its letters A-Z made lower case, in place.
+  pure subroutine to_lower(s)
+    character(len=*), intent(inout) :: s
     integer :: k, c
-    t = s
     do k = 1, len(s)
       c = iachar(s(k:k))
-      if (c >= iachar('A') .and. c <= iachar('Z')) t(k:k) = achar(c + 32)
+      if (c >= iachar('A') .and. c <= iachar('Z')) s(k:k) = achar(c + 32)
     end do
-  end function lower
+  end subroutine to_lower
 
-  !> s without leading and trailing spaces and tabs (the header's only white space).
-  pure function strip(s) result(t)
+  !> s(i:j) is s without leading and trailing spaces and tabs (the header's only white space);
+  !> i = 1, j = 0 when nothing is left.
+  pure subroutine strip_span(s, i, j)
     character(len=*), intent(in) :: s
-    character(len=:), allocatable :: t
-    integer :: i, j
+    integer, intent(out) :: i, j
     i = verify(s, ' '//achar(9))
     if (i == 0) then
-      t = ''
+      i = 1
+      j = 0
       return
     end if
     j = verify(s, ' '//achar(9), back=.true.)
-    t = s(i:j)
-  end function strip
+  end subroutine strip_span
 
-  !> The first token of s: after leading white space, up to a space or tab.
-  pure function first_word(s) result(w)
+  !> s(i:j) is the first token of s: after leading white space, up to a space or tab
+  !> (i = 1, j = 0 when there is none).
+  pure subroutine word_span(s, i, j)
     character(len=*), intent(in) :: s
-    character(len=:), allocatable :: w, t
+    integer, intent(out) :: i, j
     integer :: k
-    t = strip(s)
-    k = scan(t, ' '//achar(9))
-    if (k == 0) k = len(t) + 1
-    w = t(1:k-1)
-  end function first_word
+    call strip_span(s, i, j)
+    if (j < i) return
+    k = scan(s(i:j), ' '//achar(9))
+    if (k > 0) j = i + k - 2
+  end subroutine word_span
 
   !> True when tok is `[+-]digits` with 1 to 9 digits.
   pure logical function is_int_token(tok) result(ok)

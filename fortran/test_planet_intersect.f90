@@ -32,11 +32,15 @@ program test_planet_intersect
     call exit(1)
   end if
   call get_command_argument(1, dem_name)
+  ! (a mode given as "1 junk" was read as 1 by a list-directed read: a review; an integer out of
+  ! range goes on to zcalc_planet_intersect, whose status 12 the driver reports)
   call get_command_argument(2, arg)
-  read(arg, *, iostat=ios) read_mode
+  ios = 1
+  if (is_integer(arg)) read(arg, *, iostat=ios) read_mode
   if (ios /= 0) call fail('DEM_READ_MODE must be 0 or 1, got "'//trim(arg)//'"', 1)
   call get_command_argument(3, arg)
-  read(arg, *, iostat=ios) step_mode
+  ios = 1
+  if (is_integer(arg)) read(arg, *, iostat=ios) step_mode
   if (ios /= 0) call fail('STEP_MODE must be 0 or 1, got "'//trim(arg)//'"', 1)
   call get_command_argument(4, rays_name)
   out_name = ''
@@ -59,7 +63,10 @@ program test_planet_intersect
     if (ios /= 0) exit
     if (.not. is_data(line)) cycle
     k = k + 1
-    read(line, *, iostat=ios) row
+    ! exactly six numbers separated by spaces or tabs: a list-directed read alone took "... 0.0 /"
+    ! (it stops at the slash, keeping the last line's lz), seven numbers, commas and "3*0" (a review)
+    ios = 1
+    if (six_tokens(line)) read(line, *, iostat=ios) row
     if (ios /= 0) call fail('rays file '//trim(rays_name)//': cannot read six numbers from: '//trim(line), 1)
     s(:, k) = row(1:3)
     l(:, k) = row(4:6)
@@ -125,12 +132,49 @@ contains
     if (allocated(istat)) deallocate(istat)
   end subroutine release
 
+  !> A line holding data: not blank, not a comment (# after spaces or tabs: a tab before the #
+  !> stopped the run, a review).
   logical function is_data(text)
     character(len=*), intent(in) :: text
-    character(len=len(text)) :: a
-    a = adjustl(text)
-    is_data = len_trim(a) > 0 .and. a(1:1) /= '#'
+    integer :: i
+    i = verify(text, ' '//achar(9))
+    is_data = i > 0
+    if (is_data) is_data = text(i:i) /= '#'
   end function is_data
+
+  !> True when text is [+-]digits (1 to 9 digits), blanks around it allowed.
+  logical function is_integer(text)
+    character(len=*), intent(in) :: text
+    integer :: i, j
+    is_integer = .false.
+    i = verify(text, ' ')
+    if (i == 0) return
+    j = len_trim(text)
+    if (text(i:i) == '+' .or. text(i:i) == '-') i = i + 1
+    if (i > j .or. j - i + 1 > 9) return
+    is_integer = verify(text(i:j), '0123456789') == 0
+  end function is_integer
+
+  !> True when text holds exactly six tokens separated by spaces or tabs, none with a character
+  !> that list-directed input reads specially (/ , * ; ' ").
+  logical function six_tokens(text)
+    character(len=*), intent(in) :: text
+    integer :: i, n
+    logical :: inword
+    six_tokens = .false.
+    if (scan(text, '/,*;''"') > 0) return
+    n = 0
+    inword = .false.
+    do i = 1, len_trim(text)
+      if (text(i:i) == ' ' .or. text(i:i) == achar(9)) then
+        inword = .false.
+      else if (.not. inword) then
+        inword = .true.
+        n = n + 1
+      end if
+    end do
+    six_tokens = n == 6
+  end function six_tokens
 
   subroutine fail(message, code)
     character(len=*), intent(in) :: message

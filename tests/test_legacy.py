@@ -398,3 +398,128 @@ def test_legacy_config_reads_pc_files_like_pkg_config(tmp_path):
     pc.write_text("this is not a pc line\n")
     with pytest.raises(ValueError, match="cannot read the line"):
         legacy_config._fields(pc)
+
+
+def test_the_library_keeps_no_writable_static_data():
+    """No hidden state (DESIGN section 5): no variable of the library lives in static storage.
+    gfortran kept the lengths of strings returned by functions (the header parser's strip,
+    first_word, lower) in five static `slen` variables, and headers read in threads came back
+    with wrong values and status 0 (a review: re = 3 for 3396.19 in 0.6 % of calls). Compiler
+    tables (vtab, default initialisers) are read-only in use and allowed."""
+    lib = pi.legacy_paths()["library"]
+    nm = subprocess.run(["nm", "--defined-only", str(lib)], capture_output=True, text=True)
+    if nm.returncode != 0:
+        pytest.skip("nm (binutils) is not available to list the library's symbols")
+    static = [line for line in nm.stdout.splitlines()
+              if len(line.split()) == 3 and line.split()[1] in "bBdD"
+              and "vtab" not in line and "def_init" not in line]
+    assert static == []
+
+
+THREADED_OPEN = """\
+      PROGRAM TOPEN
+      INTEGER K, IERR, PPD, NBAD
+      DOUBLE PRECISION RMAX, F, RE
+      NBAD = 0
+C$OMP PARALLEL DO PRIVATE(K,IERR,PPD,RMAX,F,RE) REDUCTION(+:NBAD)
+      DO 10 K = 1, 8000
+         CALL ZDEM_OPEN('tdem', PPD, RMAX, F, RE, IERR)
+         IF (IERR .NE. 0 .OR. PPD .NE. 1) NBAD = NBAD + 1
+         IF (RMAX .NE. 3400D0 .OR. F .NE. 0.00589D0) NBAD = NBAD + 1
+         IF (RE .NE. 3396.19D0) NBAD = NBAD + 1
+   10 CONTINUE
+C$OMP END PARALLEL DO
+      WRITE(*,*) 'BAD', NBAD
+      END
+"""
+
+
+def test_headers_read_in_threads_are_all_right(tmp_path):
+    """ZDEM_OPEN from 8 OpenMP threads, 8,000 times: every call the header's values and status 0
+    (before the parser lost its static string lengths: 103-196 calls with an error status and
+    0.6 % with wrong values, a review)."""
+    _need_gfortran()
+    from planet_intersect import legacy_config
+
+    pi.DEM.from_array(np.full((180, 360), 3390.0), f=0.00589, re=3396.19, rmax=3400.0).write(tmp_path / "tdem")
+    (tmp_path / "topen.f").write_text(THREADED_OPEN)
+    cmd = ["gfortran", "-std=legacy", "-fopenmp", "topen.f", *legacy_config.link_args(), "-o", "topen"]
+    comp = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert comp.returncode == 0, f"{shlex.join(cmd)}\n{comp.stderr}"
+    run = subprocess.run([str(tmp_path / "topen")], capture_output=True, text=True, timeout=120, cwd=tmp_path,
+                         env={**os.environ, "OMP_NUM_THREADS": "8"})
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.split() == ["BAD", "0"]
+
+
+def test_driver_reads_exactly_six_numbers_a_line(tmp_path, rough, driver):
+    """A list-directed read took "8000 0 0 -1 0.0 /" (stopping at the slash and keeping the last
+    line's lz: a wrong ray, exit 0), seven numbers, commas and "3*0"; a tab before a # comment
+    stopped the run; a mode "1 junk" was 1 (a review of the legacy interface)."""
+    hdr = rough.write(tmp_path / "legacy", dtype="float32")
+    base = str(hdr.with_suffix(""))
+    good = "8000 0 0 -1 0 0.1\n"
+
+    def run(text, modes=("0", "1")):
+        rays = tmp_path / "rays.txt"
+        rays.write_text(text)
+        return subprocess.run([str(driver), base, *modes, str(rays)], capture_output=True, text=True, timeout=60)
+
+    for bad in ("8000 0 0 -1 0.0 /\n", "8000 0 0 -1 0 0 7\n", "8000,0,0,-1,0,0\n", "8000 3*0 0 0\n"):
+        r = run(good + bad)
+        assert r.returncode == 1 and "cannot read six numbers" in r.stderr, bad
+    r = run(good + "\t# a comment after a tab\n" + "\t8000\t0\t0\t-1\t0\t0\n")
+    assert r.returncode == 0, r.stderr
+    assert len([ln for ln in r.stdout.splitlines() if ln.strip() and not ln.startswith("#")]) == 2
+    r = run(good, modes=("1 junk", "1"))
+    assert r.returncode == 1 and "DEM_READ_MODE must be 0 or 1" in r.stderr
+    r = run(good, modes=("2", "1"))                 # an integer out of range: zcalc's status 12, exit 2
+    assert r.returncode == 2 and "status 12" in r.stderr
+
+
+LEGACY_ERRORS = """\
+      PROGRAM TERR
+      DOUBLE PRECISION S(3), L(3), TC(3), SC(3), D, RMAX, F, RE
+      DOUBLE PRECISION P(3), T(3), TCC(3), SCC(3), EM, R(360, 180)
+      INTEGER IERR, PPD, IST
+      S(1) = 5000D0
+      S(2) = 0D0
+      S(3) = 0D0
+      L(1) = 0D0
+      L(2) = 0D0
+      L(3) = 0D0
+      CALL ZTANGENT_ELLIPSOID(S, L, 0.00589D0, 3396.19D0, TC, SC, D)
+      IF (D .NE. D .AND. TC(1) .NE. TC(1) .AND. SC(3) .NE. SC(3))
+     &   WRITE(*,*) 'TANGENT NAN'
+      L(1) = -1D0
+      CALL ZCALC_PLANET_INTERSECT(1, S, L, 'nosuch', 0, 5, P, T, TCC,
+     &   SCC, EM, IST, IERR)
+      WRITE(*,*) 'CALC', IERR
+      CALL ZDEM_OPEN('nosuch', PPD, RMAX, F, RE, IERR)
+      IF (RMAX .NE. RMAX .AND. F .NE. F .AND. RE .NE. RE)
+     &   WRITE(*,*) 'OPEN NAN', IERR
+      CALL ZDEM_READ('tdem', 100, 50, R, IERR)
+      IF (R(1, 1) .NE. R(1, 1)) WRITE(*,*) 'READ NAN', IERR
+      END
+"""
+
+
+def test_legacy_errors_leave_nan_and_name_the_mode(tmp_path):
+    """ztangent_ellipsoid with l = 0 gave tc = s and a finite d; zcalc with a missing file and step
+    mode 5 said 1 (no header) and never 12; zdem_open and zdem_read left 0 or partial values on an
+    error, where NaN is the project's missing value (a review of the legacy interface)."""
+    _need_gfortran()
+    from planet_intersect import legacy_config
+
+    pi.DEM.from_array(np.full((180, 360), 3390.0), f=0.00589, re=3396.19).write(tmp_path / "tdem")
+    (tmp_path / "terr.f").write_text(LEGACY_ERRORS)
+    cmd = ["gfortran", "-std=legacy", "terr.f", *legacy_config.link_args(), "-o", "terr"]
+    comp = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert comp.returncode == 0, f"{shlex.join(cmd)}\n{comp.stderr}"
+    run = subprocess.run([str(tmp_path / "terr")], capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert run.returncode == 0 and run.stderr == "", run.stderr
+    got = [ln.split() for ln in run.stdout.splitlines()]
+    assert ["TANGENT", "NAN"] in got
+    assert ["CALC", "12"] in got
+    assert ["OPEN", "NAN", "1"] in got
+    assert ["READ", "NAN", "13"] in got                     # wrong sizes: stat_bad_shape, radii NaN
