@@ -491,18 +491,7 @@ class GeodeticDSM:
                 raise DSMError(f"DSM file {path}: band {band} does not exist (the file has {src.count})")
             nd = _file_nodata(nodata, src.nodata)
             file_bands = int(src.count)
-            try:
-                # read before anything else is judged: a truncated file raised rasterio's bare "Read
-                # failed" naming neither file nor problem, or was said to have no CRS (a review)
-                raw = src.read(band)                      # once: the branches below convert it
-                invalid = _mask_band(src, band)
-            except Exception as exc:  # noqa: BLE001
-                raise DSMError(f"DSM file {path}: band {band} cannot be read (truncated or corrupt?): "
-                               f"{_short(exc)}") from None
-            if src.crs is None:
-                raise DSMError(f"DSM file {path}: no CRS (a geographic or projected CRS is needed)")
-            if raw.dtype.kind not in "fiu":
-                raise DSMError(f"DSM file {path}: band {band} holds {raw.dtype} values, not real numbers")
+            raw, invalid = _read_bands(src, int(band), path, "DSM", DSMError)   # once: the branches convert it
             if nd is None and raw.dtype == np.int16 and raw[~invalid].size and int(raw[~invalid].min()) == -32768:
                 # the usual void of int16 DEMs (SRTM): read as 32.8 km pits (a review); the planetary
                 # reader refuses -32768 as well
@@ -558,6 +547,25 @@ class GeodeticDSM:
         return dsm
 
 
+def _read_bands(src, bands, path, what: str, error):
+    """(values, invalid) of a raster's band (an int: 2-D) or bands (a list: 3-D), invalid where its
+    mask or alpha band says so (_mask_band); ``error`` naming the file when they cannot be read, when
+    it has no CRS or when its values are not real numbers. Read before anything else is judged: a
+    truncated file raised rasterio's bare "Read failed" naming neither file nor problem, or was said
+    to have no CRS (a review). Shared by GeodeticDSM.read and OrthoImage.read."""
+    label = f"band {bands} " if isinstance(bands, int) else ""
+    try:
+        values = src.read(bands)
+        invalid = _mask_band(src, bands) if isinstance(bands, int) else np.stack([_mask_band(src, b) for b in bands])
+    except Exception as exc:  # noqa: BLE001
+        raise error(f"{what} file {path}: {label}cannot be read (truncated or corrupt?): {_short(exc)}") from None
+    if src.crs is None:
+        raise error(f"{what} file {path}: no CRS (a geographic or projected CRS is needed)")
+    if values.dtype.kind not in "fiu":
+        raise error(f"{what} file {path}: {label}holds {values.dtype} values, not real numbers")
+    return values, invalid
+
+
 def _mask_band(src, band: int) -> np.ndarray:
     """Cells of ``band`` that the raster's own mask band or alpha band marks invalid (GDAL's
     per-dataset mask, an internal ``.msk`` or an alpha band): True there. A nodata tag is not
@@ -569,6 +577,33 @@ def _mask_band(src, band: int) -> np.ndarray:
     if MaskFlags.per_dataset in flags or MaskFlags.alpha in flags:
         return src.read_masks(band) == 0
     return np.zeros((src.height, src.width), dtype=bool)
+
+
+def _crs_body(c, path, what: str, a, f, error) -> tuple[float, float, bool, bool]:
+    """The body of a raster's CRS ``c`` (pyproj) against the target ellipsoid ``a``, ``f`` (the DSM's;
+    None: an ortho-image, whose body simulate_image checks): ``(ca, cf, earth, wgs84)``, the CRS's
+    semi-major axis (m) and flattening, whether it is an Earth datum, and whether the grid is to be
+    WGS-84's (an Earth datum and a WGS-84 or no target); otherwise the CRS's own geodetic CRS is the
+    target. ``error`` naming the file for a CRS without an ellipsoid, for an Earth datum with another
+    body's (or unit's) a, f, and for another body's CRS with an ellipsoid other than a, f."""
+    ell = c.ellipsoid
+    if ell is None or c.geodetic_crs is None:
+        raise error(f"{what} file {path}: its CRS ({c.name}) is not tied to an ellipsoid (an engineering or "
+                    f"local CRS): it cannot be placed on a body")
+    ca = ell.semi_major_metre
+    cf = 0.0 if not ell.inverse_flattening else 1.0 / ell.inverse_flattening
+    earth = abs(ca - WGS84_A) <= 0.01 * WGS84_A
+    if a is None:
+        return ca, cf, earth, earth
+    if earth and math.isclose(a, WGS84_A, rel_tol=1e-12) and math.isclose(f, WGS84_F, rel_tol=1e-9):
+        return ca, cf, True, True
+    if math.isclose(ca, a, rel_tol=1e-9) and math.isclose(cf, f, rel_tol=1e-9, abs_tol=1e-12):
+        return ca, cf, earth, False                        # the caller's own ellipsoid, the CRS's
+    if earth:
+        raise error(f"{what} file {path}: its CRS ({c.name}, a = {ca:.10g}) is an Earth datum, but "
+                    f"a = {a:.10g}, f = {f:.10g} was asked for")
+    raise error(f"{what} file {path}: its CRS ({c.name}) is on the ellipsoid a = {ca:.10g}, "
+                f"f = {cf:.10g}, not a = {a:.10g}, f = {f:.10g}: pass that body's a= and f=")
 
 
 def _geodetic_grid(src, path, what: str, error, a=None, f=None):
@@ -595,29 +630,15 @@ def _geodetic_grid(src, path, what: str, error, a=None, f=None):
 
     try:
         c = pyproj.CRS.from_user_input(src.crs.to_wkt())
-        ell = c.ellipsoid
     except Exception as exc:  # noqa: BLE001
         raise error(f"{what} file {path}: its CRS cannot be used ({_short(exc)})") from None
-    if ell is None or c.geodetic_crs is None:
-        raise error(f"{what} file {path}: its CRS ({c.name}) is not tied to an ellipsoid (an engineering or "
-                    f"local CRS): it cannot be placed on a body")
-    ca = ell.semi_major_metre
-    cf = 0.0 if not ell.inverse_flattening else 1.0 / ell.inverse_flattening
-    earth = abs(ca - WGS84_A) <= 0.01 * WGS84_A
-    own = a is not None and math.isclose(ca, a, rel_tol=1e-9) and math.isclose(cf, f, rel_tol=1e-9, abs_tol=1e-12)
-    if earth and (a is None or (math.isclose(a, WGS84_A, rel_tol=1e-12) and math.isclose(f, WGS84_F, rel_tol=1e-9))):
+    ca, cf, _, wgs84 = _crs_body(c, path, what, a, f, error)
+    if wgs84:
         dst_crs, wrap = "EPSG:4326", "+proj=longlat +datum=WGS84 +lon_wrap=180 +no_defs"
-    elif own or (not earth and a is None):
-        g = c.geodetic_crs
-        dst_crs = CRS.from_wkt(g.to_wkt())
+    else:
+        dst_crs = CRS.from_wkt(c.geodetic_crs.to_wkt())
         wrap = f"+proj=longlat +a={ca!r} +rf={1.0 / cf!r} +lon_wrap=180 +no_defs" if cf else \
             f"+proj=longlat +R={ca!r} +lon_wrap=180 +no_defs"
-    elif earth:
-        raise error(f"{what} file {path}: its CRS ({c.name}, a = {ca:.10g}) is an Earth datum, but "
-                    f"a = {a:.10g}, f = {f:.10g} was asked for")
-    else:
-        raise error(f"{what} file {path}: its CRS ({c.name}) is on the ellipsoid a = {ca:.10g}, "
-                    f"f = {cf:.10g}, not a = {a:.10g}, f = {f:.10g}: pass that body's a= and f=")
     res = None
     if c.is_projected:
         # the source's pixel in metres (its unit: feet...), as degrees of latitude and longitude at
@@ -721,20 +742,9 @@ def _geographic_datum(crs, bounds, path, what: str, a=None, f=None) -> str:
     import pyproj
 
     c = pyproj.CRS.from_user_input(crs.to_wkt())
-    ell = c.ellipsoid
-    ca = ell.semi_major_metre
-    cf = 0.0 if not ell.inverse_flattening else 1.0 / ell.inverse_flattening
-    if abs(ca - WGS84_A) > 0.01 * WGS84_A:                 # another body
-        if a is not None and not (math.isclose(ca, a, rel_tol=1e-9) and math.isclose(cf, f, rel_tol=1e-9,
-                                                                                      abs_tol=1e-12)):
-            raise DSMError(f"{what} file {path}: its CRS ({c.name}) is on the ellipsoid a = {ca:.10g}, "
-                           f"f = {cf:.10g}, not a = {a:.10g}, f = {f:.10g}: pass that body's a= and f=")
+    ca, cf, _, wgs84 = _crs_body(c, path, what, a, f, DSMError)
+    if not wgs84:                                          # another body, or the caller's own datum
         return "as-is"
-    if a is not None and not (math.isclose(a, WGS84_A, rel_tol=1e-12) and math.isclose(f, WGS84_F, rel_tol=1e-9)):
-        if math.isclose(ca, a, rel_tol=1e-9) and math.isclose(cf, f, rel_tol=1e-9, abs_tol=1e-12):
-            return "as-is"                                 # the caller's own ellipsoid, the CRS's
-        raise DSMError(f"{what} file {path}: its CRS ({c.name}, a = {ca:.10g}) is an Earth datum, but "
-                       f"a = {a:.10g}, f = {f:.10g} was asked for")
     lon_c = 0.5 * (bounds.left + bounds.right)
     lat_c = min(89.0, max(-89.0, 0.5 * (bounds.bottom + bounds.top)))
     try:

@@ -303,7 +303,7 @@ class OrthoImage:
         with src:
             from rasterio.enums import ColorInterp
 
-            from .dsm import _geodetic_grid, _geographic_datum, _mask_band, _nodata_cells, _short
+            from .dsm import _geodetic_grid, _geographic_datum, _nodata_cells, _read_bands
 
             nd = _file_nodata(nodata, src.nodata)
             # an alpha band is the mask of the others, not brightness (an RGBA file was read as four
@@ -311,16 +311,7 @@ class OrthoImage:
             keep = [b for b in range(1, src.count + 1) if src.colorinterp[b - 1] != ColorInterp.alpha]
             if not keep:
                 raise ValueError(f"ortho-image file {path}: has only alpha bands, no brightness")
-            try:
-                data = src.read(keep)                           # (bands, rows, cols)
-                invalid = np.stack([_mask_band(src, b) for b in keep])
-            except Exception as exc:  # noqa: BLE001
-                raise ValueError(f"ortho-image file {path}: cannot be read (truncated or corrupt?): "
-                                 f"{_short(exc)}") from None
-            if src.crs is None:
-                raise ValueError(f"ortho-image file {path}: no CRS (a geographic or projected CRS is needed)")
-            if data.dtype.kind not in "fiu":
-                raise ValueError(f"ortho-image file {path}: holds {data.dtype} values, not real numbers")
+            data, invalid = _read_bands(src, keep, path, "ortho-image", ValueError)   # (bands, rows, cols)
             if nd is not None:
                 invalid |= _nodata_cells(data, nd)              # (in the data's own precision)
             nd_file, nd = nd, None                              # (applied above, in the file's dtype)
