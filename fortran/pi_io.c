@@ -6,13 +6,22 @@
  * Each function returns a negative value on failure and never prints.
  */
 #define _FILE_OFFSET_BITS 64
+#include <errno.h>
 #include <fcntl.h>
 #include <stdint.h>
 #include <sys/stat.h>
 #include <sys/types.h>
 #include <unistd.h>
 
-int pi_io_open(const char *path) { return open(path, O_RDONLY); }
+/* Close-on-exec: a program started (by another thread) while a call reads the file must not
+ * inherit the descriptor (an independent review, 2026-12-05). */
+int pi_io_open(const char *path) {
+  int fd;
+  do {
+    fd = open(path, O_RDONLY | O_CLOEXEC);
+  } while (fd < 0 && errno == EINTR);
+  return fd;
+}
 
 int pi_io_close(int fd) { return close(fd); }
 
@@ -27,6 +36,7 @@ int pi_io_pread(int fd, void *buf, int64_t n, int64_t offset) {
   char *p = (char *)buf;
   while (n > 0) {
     ssize_t got = pread(fd, p, (size_t)n, (off_t)offset);
+    if (got < 0 && errno == EINTR) continue; /* a signal before any byte: read again */
     if (got <= 0) return -1;
     p += got;
     n -= got;

@@ -758,7 +758,7 @@ def _add_footprint_parser(sub) -> None:
                    help="also test each pair's line of sight against the terrain (exact ray casting): "
                         "hidden pairs are kept, with visible = 0")
     g.add_argument("--color", choices=("solid_angle", "emission"), default="solid_angle", help="map colouring")
-    g.add_argument("--threads", type=int, default=0, help="OpenMP threads (default 0: all cores)")
+    g.add_argument("--threads", type=int, default=0, help="OpenMP threads (default 0: OMP_NUM_THREADS if set, else all cores)")
     g.add_argument("--chunk", type=int, default=50, help="spectra per call (progress is shown between chunks)")
     g.add_argument("--out", default="footprint-output",
                    help="results go to a new run-NNN folder here (default: footprint-output)")
@@ -1060,7 +1060,7 @@ def _add_simulate_parser(sub) -> None:
     s.add_argument("--memmap", action="store_true", help="keep the backplanes in memory-mapped files (huge images)")
     s.add_argument("--block-lines", type=int, default=None,
                    help="image lines per block (default: as many as make ~131,072 pixels)")
-    s.add_argument("--threads", type=int, help="OpenMP threads (default: all cores)")
+    s.add_argument("--threads", type=int, help="OpenMP threads (default: OMP_NUM_THREADS if set, else all cores)")
     s.add_argument("--size", type=int, default=640, help="without --dsm: the paper scene's size in metres")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.add_argument("--out", default="simulate-output",
@@ -1093,7 +1093,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="results go to a new run-NNN folder here (default: planet-intersect-output)")
     r.add_argument("--method", choices=("stepping", "exact", "following", "iterative"), default=None,
                    help="DEM: stepping (default) or exact; DSM: following (default), exact or iterative")
-    r.add_argument("--threads", type=int, default=0, help="OpenMP threads (default 0: all cores)")
+    r.add_argument("--threads", type=int, default=0, help="OpenMP threads (default 0: OMP_NUM_THREADS if set, else all cores)")
     dem_g = r.add_argument_group("planetary DEM only")
     dem_g.add_argument("--step-mode", type=int, choices=(0, 1), default=None, help="default 1")
     dem_g.add_argument("--dem-read-mode", type=int, choices=(0, 1), default=None, help="default 0")

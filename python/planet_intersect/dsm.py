@@ -847,7 +847,7 @@ def intersect_dsm(dsm: GeodeticDSM, s, l, method: str = "following", threads: in
         "iterative": the conventional iterative ray tracing (status
         OSCILLATION / NOT_CONVERGED where it fails).
     threads : int, optional
-        OpenMP threads (None or 0: all cores); results bit-identical for any count.
+        OpenMP threads (None or 0: OMP_NUM_THREADS if set, else all cores); results bit-identical for any count.
     outside : "none" or "ellipsoid"
         "ellipsoid": rays that leave the DSM (LEFT_DSM) also get the point where
         they enter the bare ellipsoid (h = 0, from above) at or after the point

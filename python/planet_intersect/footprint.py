@@ -1391,7 +1391,7 @@ def footprint(cells: CellTable, R, v=None, area: float = _AREA_DEFAULT, zeta: fl
         default for a DEM whose radii exceed 1e5: pass H, e.g. 1.0807e4 for
         metres, or a model that does not use it) [note 19].
     threads : int, optional
-        OpenMP threads over the spectra (None or 0: all cores); results are
+        OpenMP threads over the spectra (None or 0: OMP_NUM_THREADS if set, else all cores); results are
         bit-identical for any count.
     progress : callable, optional
         ``progress(done, total)`` during the occlusion rays.
@@ -1439,11 +1439,11 @@ def footprint(cells: CellTable, R, v=None, area: float = _AREA_DEFAULT, zeta: fl
         raise ValueError("occlusion_tol and progress apply only with occlusion=True (they would be ignored)")
     if occlusion:
         _occlusion_tol(cells.dem, occlusion_tol)          # before the kernel, not after it
-    if threads is None:
-        threads = 0
-    if (isinstance(threads, (bool, np.bool_)) or not isinstance(threads, (int, np.integer)) or threads < 0
-            or threads > 1024):
-        raise ValueError(f"threads must be an integer from 0 to 1024 (0 or None: all cores), got {threads!r}")
+    from .intersect import check_threads
+    # one rule for every entry point (0 or None: OMP_NUM_THREADS if set, else all cores; one thread in a
+    # process forked after OpenMP ran): 0 used to reach the kernel as OpenMP's own default, which read
+    # OMP_NUM_THREADS where intersect did not (an independent review, 2026-12-05)
+    threads = check_threads(threads, max(1, len(R)))
     if v is None:
         frames = np.full((len(R), 3, 3), np.nan)
     else:

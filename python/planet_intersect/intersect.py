@@ -212,19 +212,63 @@ def _unit_scaled(v: np.ndarray, n2: np.ndarray | None = None) -> np.ndarray:
     return v
 
 
+# libgomp (GCC's OpenMP) cannot start threads in a child forked after its own threads ran in the
+# parent: the child's first parallel region with more than one thread never returns (an independent
+# review, 2026-12-05: a call, then multiprocessing's default "fork" pool, hung). So the package notes
+# when it has run OpenMP on more than one thread, and a process forked after that runs every call on
+# one thread, with one warning. Process-level facts of the Python layer, never read by the Fortran.
+_omp_used_threads = False
+_forked_after_omp = False
+_fork_warned = False
+
+
+def _after_fork_in_child() -> None:
+    global _forked_after_omp, _fork_warned
+    if _omp_used_threads:
+        _forked_after_omp = True
+        _fork_warned = False
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork_in_child)
+
+
+def _default_threads() -> int:
+    """None or 0: OMP_NUM_THREADS when it is set to a positive integer (its first value, as OpenMP
+    reads it), else the cores this process may run on."""
+    env = os.environ.get("OMP_NUM_THREADS", "").split(",")[0].strip()
+    if env.isdigit() and int(env) > 0:
+        return min(int(env), MAX_THREADS)
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def check_threads(threads, n: int) -> int:
-    """The OpenMP thread count for n rays: None or 0 means all cores; otherwise an
-    integer in 1..MAX_THREADS, used as min(threads, n) (threads beyond the rays
-    would idle). Results are bit-identical for any count."""
+    """The OpenMP thread count for n rays: None or 0 means OMP_NUM_THREADS if set, else all
+    cores; otherwise an integer in 1..MAX_THREADS, used as min(threads, n) (threads beyond the
+    rays would idle). In a process forked after the package ran OpenMP threads: 1 (libgomp cannot
+    start threads there; see above). Results are bit-identical for any count."""
+    global _omp_used_threads, _fork_warned
     if threads is None:
         threads = 0
     if isinstance(threads, (bool, np.bool_)) or not isinstance(threads, (int, np.integer)) \
             or not 0 <= threads <= MAX_THREADS:
-        raise ValueError(f"threads must be an integer in 0..{MAX_THREADS} (0 or None: all cores), got {threads!r}")
+        raise ValueError(f"threads must be an integer in 0..{MAX_THREADS} (0 or None: OMP_NUM_THREADS "
+                         f"if set, else all cores), got {threads!r}")
     threads = int(threads)
     if threads == 0:
-        threads = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return max(1, min(threads, n))
+        threads = _default_threads()
+    threads = max(1, min(threads, n))
+    if threads > 1 and _forked_after_omp:
+        if not _fork_warned:
+            _fork_warned = True
+            warnings.warn("planet_intersect: this process was forked after the package ran OpenMP threads, "
+                          "and GCC's OpenMP cannot start threads again in it: calls here run on one thread "
+                          "(start worker processes with multiprocessing's 'spawn' or 'forkserver' method "
+                          "to keep their threads)", RuntimeWarning, stacklevel=3)
+        return 1
+    if threads > 1:
+        _omp_used_threads = True
+    return threads
 
 
 def _choice(value, name: str, allowed) -> str:
@@ -262,7 +306,7 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
     are ECR metres (the DSM's units), ``threads`` as below, keyword
     ``outside="ellipsoid"`` falls back to the bare ellipsoid where a ray
     leaves the DSM; ``step_mode``, ``dem_read_mode``, ``tangent`` and ``io``
-    are the DEM's only (refused). The result is then a
+    are the DEM's only (a value other than their defaults is refused). The result is then a
     :class:`~planet_intersect.dsm.DSMResult` (lat, lon in degrees, lon in
     [-180, 180); height above the ellipsoid; incidence in degrees from the
     ellipsoid normal; status codes in docs/status-codes.md). The parameters
@@ -287,7 +331,7 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
         line and spheroid; "paper" the construction of eqs. 55-58, which agrees
         when the line touches the spheroid (docs/paper-notes.md gives the difference).
     threads : int, optional
-        OpenMP threads for the ray loop; None or 0: all cores. Results are
+        OpenMP threads for the ray loop; None or 0: OMP_NUM_THREADS if set, else all cores. Results are
         bit-identical for any count.
     method : "stepping" or "exact" (a DEM); "following", "exact" or "iterative" (a DSM)
         "stepping": the paper's algorithm (eqs. 23-41). "exact": the first entry
@@ -297,7 +341,7 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
         miss of a chord longer than that. ``nsteps`` then counts the segments
         examined. Limb outputs are identical for both.
     io : "records" or "mmap"
-        How dem_read_mode=1 reads the file (refused with dem_read_mode=0): "records", one pread per record (the
+        How dem_read_mode=1 reads the file ("mmap" is refused with dem_read_mode=0): "records", one pread per record (the
         paper's direct access; resident memory stays small whatever the DEM size);
         "mmap", from a read-only memory map (faster; the kernel pages in what the
         rays touch): the DEM's own map, kept open between calls, when the file is

@@ -1082,7 +1082,6 @@ def _occlusion(dsm: GeodeticDSM, ortho: OrthoImage, sensor, sim: SimResult, thre
         nearest_line = line_of[ni, nj]
         del ni, nj
     del line_of
-    import warnings
 
     rows_per = max(1, chunk // inside.shape[1])
     for r0 in range(0, inside.shape[0], rows_per):
@@ -1102,9 +1101,10 @@ def _occlusion(dsm: GeodeticDSM, ortho: OrthoImage, sensor, sim: SimResult, thre
         s = focal[nearest_line[cu, cv]]
         d = x - s
         dist = np.linalg.norm(d, axis=1)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            res = intersect_dsm(dsm, s, d, method="exact", threads=threads)
+        # (no warnings.catch_warnings here: it swaps the process's filter list, so another thread's
+        # warnings were lost while it ran, and two overlapping calls could leave "ignore" installed
+        # for good; intersect_dsm emits no RuntimeWarning of its own to hide: a review, 2026-12-05)
+        res = intersect_dsm(dsm, s, d, method="exact", threads=threads)
         hidden = (res.status == DSMStatus.HIT) & (res.distance < dist - 0.01)
         occ[cu[hidden] + u0, cv[hidden] + v0] = True
     return occ, foot
