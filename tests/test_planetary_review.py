@@ -109,3 +109,29 @@ def test_run_into_a_folder_that_takes_no_entries_names_out(tmp_path, monkeypatch
     monkeypatch.setattr(Path, "mkdir", no_entries)
     with pytest.raises(cli.CLIError, match=r"--out .*/o: cannot make run-001 in it \(Operation not permitted\)"):
         cli._new_run_dir(base)
+
+
+def test_the_papers_tangent_point_is_up_to_1_1_km_from_the_nearest_point_on_mars():
+    # paper-notes note 11 said "up to 0.88 km" (the maximum over its own 4,000 rays) and
+    # design-departures quoted that as a bound; a review's 20,000 random limb rays found 1.114 km
+    # (2026-12-05). The difference depends on the spheroid only (these rays miss the surface).
+    # The nearest point itself is checked against SPICE's npedln in test_spice.py.
+    radii = np.full((360, 720), 3396.19 - 10.0)         # 2 ppd, 10 km below the spheroid's equator
+    dem = pi.DEM.from_array(radii, f=1 / 169.8, re=3396.19, rmax=3396.19)
+    rng = np.random.default_rng(0)
+    n = 20000
+    u = rng.normal(size=(n, 3))
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    s = u * (3396 + rng.uniform(300, 1000, n))[:, None]
+    w = rng.normal(size=(n, 3))
+    w -= (w * u).sum(1)[:, None] * u
+    w /= np.linalg.norm(w, axis=1)[:, None]
+    ang = np.arcsin((3396 + rng.uniform(0, 200, n)) / np.linalg.norm(s, axis=1))
+    l = -np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * w
+    ex = pi.intersect(dem, s, l, tangent="exact", threads=1)
+    pa = pi.intersect(dem, s, l, tangent="paper", threads=1)
+    m = (ex.status == 1) & (pa.status == 1) & (ex.tangent_height <= 200)
+    assert m.sum() > 15000
+    dsc = np.linalg.norm(ex.sc[m] - pa.sc[m], axis=1)
+    assert 1.0 < dsc.max() < 1.2                                  # km
+    assert 0.003 < np.abs(ex.tangent_height[m] - pa.tangent_height[m]).max() < 0.0034   # km: note 11's 3.3 m
