@@ -430,3 +430,44 @@ def test_rays_per_second_times_the_java_loop():
     assert rps == pytest.approx(200 / np.median(t["times"]), rel=1e-12)
     with pytest.raises(ValueError, match="repeats"):
         dsm.rays_per_second(s, l, warmup=0, repeats=0)
+
+
+def test_a_global_grid_gets_tiles_of_half_a_turn_and_rugged_returns_near_180_degrees():
+    # ETOPO20 (1,080 columns, 20'): one default tile of 1,208 columns, wider than the period,
+    # made Duvenhage spin forever on a ray hitting at 40.86 N 178.85 E (found 2026-12-05, when the
+    # grid loader first gave the grid as global). The call runs in a child process, so that a spin
+    # fails the test instead of hanging it.
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    tests = Path(__file__).resolve().parent
+    etopo = Path(os.environ.get("PI_SHARED_DATA", tests.parents[1] / "shared" / "data")) / "earth_etopo20"
+    if not (etopo / "etopo20data.gz").exists():
+        pytest.skip(f"{etopo}: ETOPO20 grid not available")
+    code = f"""
+import sys, json
+sys.path.insert(0, {str(tests)!r})
+import numpy as np
+from references.earth_data import etopo20_grid
+from references.rugged.bridge import RuggedDSM
+g = etopo20_grid({str(etopo)!r})
+rug = RuggedDSM(g["heights"], g["lat_first"], g["lon_first"], g["dlat"], g["dlon"], a=g["a"], f=g["f"])
+s = np.array([[-5104108.720278642, 334546.15562336944, 4609238.690826956]])
+l = np.array([[0.47256248677290624, -0.40268397617271845, -0.7839198373741643]])
+r = rug.intersect(s, l)
+print(json.dumps(dict(cols=rug.tile_cols, period=rug.period, hit=bool(r["hit"][0]), lat=float(r["lat"][0]),
+                      lon=float(r["lon"][0]), r=float(r["r"][0]))))
+"""
+    try:
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    except subprocess.TimeoutExpired:
+        pytest.fail("Rugged did not return within 120 s on the ETOPO20 ray at 178.85 E")
+    assert out.returncode == 0, out.stderr[-2000:]
+    import json
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["period"] == 1080 and got["cols"] <= 541
+    # the exact mode's hit of the same ray (pi.intersect(method="exact") on the same grid)
+    assert got["hit"] and abs(got["lat"] - 40.86132742) < 1e-7 and abs(got["lon"] - 178.84566979) < 1e-7
+    assert abs(got["r"] - 589325.6227246) < 1e-3

@@ -281,7 +281,9 @@ class RuggedDSM:
         Semi-major axis (units of heights and rays) and flattening; WGS-84 by default.
     tile_size : int, optional
         Nodes per side of Rugged's tiles (>= 3). Default: the DSM plus its
-        margin in one tile, at most 4097 nodes per side.
+        margin in one tile, at most 4097 nodes per side, and on a grid
+        periodic in longitude at most half a turn plus one node (a tile wider
+        than the period made Rugged spin forever on a ray near 180 degrees).
     margin : int, optional
         Fill nodes between tile (0, 0)'s south-west corner and the DSM (default 64).
     fill : float, optional
@@ -341,6 +343,11 @@ class RuggedDSM:
             raise ValueError(f"margin must be >= 0, got {margin}")
         if tile_size is None:
             tile_size = min(max(nrows, ncols) + 2 * margin, 4097)
+            if period:
+                # a tile wider than the planet's period (ETOPO20: 1,208 columns for 1,080) made
+                # Duvenhage spin forever on a ray hitting at 178.8 E; tiles of half a turn do not
+                # (measured 2026-12-05, when the ETOPO20 grid first came in as global)
+                tile_size = min(tile_size, period // 2 + 1)
         tile_size = int(tile_size)
         if tile_size < 3:
             raise ValueError(f"tile_size must be >= 3 nodes, got {tile_size}")
