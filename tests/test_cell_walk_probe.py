@@ -144,3 +144,32 @@ def test_the_least_refinement_pins_bracketed_roots_to_a_micrometre(scene, conv):
     assert close.mean() >= 0.9
     # and it moved them: the walk alone is within 1e-6 m on far fewer of those rays
     assert (np.abs(walk - ref)[bracketed] <= 1e-6).mean() < 0.5 * close.mean()
+
+
+def test_the_timed_line_sweep_certifies_the_scans_as_the_exact_mode_does():
+    # "Seventeenth look": the bound on the package's sharing design adds the line sweep's time to the
+    # least refinement. The call timed must be the sweep the exact mode runs on the scans (fans found
+    # from the focal points, fan=-1), doing its real work: most scan rays certified, none past its
+    # first event, and the exact mode's answers the same with and without that sharing.
+    from geodetic import scan_rays
+
+    from planet_intersect import _core
+
+    grid = sd.building_scene(n=512, seed=11)       # scans of 170-pixel lines
+    grid.pop("roof_id")
+    s, l = scan_rays(grid, 2000, seed=3)
+    dsm = pi.GeodeticDSM.from_array(grid["heights"], grid["lat_first"], grid["lon_first"], grid["dlat"],
+                                    grid["dlon"], a=grid["a"], f=grid["f"])
+    pyr, meta = dsm.pyramid()
+    g = dsm._core_grid()
+    s_t = np.ascontiguousarray(np.asarray(s, dtype=np.float64).T)
+    l_t = np.ascontiguousarray((l / np.linalg.norm(l, axis=1, keepdims=True)).T)
+    rclear = _core.core_dsm_sweep(*g[:7], g[7], dsm.hmax, dsm.hmin, pyr, meta.T, s_t, l_t, -1)
+    ex = pi.intersect(dsm, s, l, method="exact", threads=1)
+    assert (rclear > 0).mean() >= 0.9
+    hit = np.asarray(ex.hit)
+    assert hit.sum() >= 0.8 * len(s)                 # 1,481 of 1,700: the rest leave the grid
+    assert np.all(rclear[hit] <= ex.distance[hit])
+    # the certificate ends near the surface: most of each ray's way down to its hit is proved clear
+    frac = rclear[hit & (rclear > 0)] / ex.distance[hit & (rclear > 0)]
+    assert np.median(frac) > 0.999
