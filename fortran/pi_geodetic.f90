@@ -73,8 +73,10 @@ contains
   end subroutine ecr_to_geodetic_printed
 
   !> Shin & Park eq. 2 as Bowring/Dana state it (e'^2 b sin^3 theta) [note 1]:
-  !> the one-step formula the paper cites. h = p/cos(lat) - N as printed
-  !> (ill-conditioned within ~1 degree of the poles: note 2).
+  !> the one-step formula the paper cites. h = p/cos(lat) - N as printed, and
+  !> within ~5.7 degrees of the poles (p < |z|/10) the same h as
+  !> p cos(lat) + z sin(lat) - a sqrt(1 - e2 sin^2 lat), which stays well
+  !> conditioned on and near the axis (note 2).
   !>
   !> Inputs: x, y, z ECR (units of a); a, f. Outputs: lat, lon (radians), h.
   elemental subroutine ecr_to_geodetic_bowring(x, y, z, a, f, lat, lon, h)
@@ -88,10 +90,16 @@ contains
     th = atan2(z * a, b * p)                                         ! Shin & Park eq. 2, theta
     lat = atan2(z + ep2 * b * sin(th)**3, p - e2 * a * cos(th)**3)   ! eq. 2, phi [note 1]
     lon = atan2(y, x)                                                ! eq. 2, lambda
-    h = p / cos(lat) - a / sqrt(1.0_dp - e2 * sin(lat)**2)           ! eq. 2, h [note 2]
-    ! on the axis p / cos(lat) is 0/0 rounded to 0 (h = -N: -6,399,594 m at the pole itself, and a
-    ! drone 50 m over the pole was a hit at its own focal point in the following; a review)
-    if (p == 0.0_dp) h = abs(z) - b
+    if (p >= 0.1_dp * abs(z)) then
+      h = p / cos(lat) - a / sqrt(1.0_dp - e2 * sin(lat)**2)         ! eq. 2, h [note 2]
+    else
+      ! within ~5.7 degrees of the poles, the same h in a form that does not divide by cos(lat):
+      ! p / cos(lat) turns the rounding of lat into N^2 ulp / p of height (1.4 m at 1 mm from the
+      ! axis, -210 km at 10 nm, and the following's false hits 32 m over the surface near a pole;
+      ! an independent review, 2026-12-05); p cos(lat) + z sin(lat) - a sqrt(1 - e2 sin^2 lat) is
+      ! stationary in lat at the foot point, so lat's rounding no longer reaches h [note 2]
+      h = p * cos(lat) + z * sin(lat) - a * sqrt(1.0_dp - e2 * sin(lat)**2)
+    end if
   end subroutine ecr_to_geodetic_bowring
 
   !> Exact ECR -> geodetic conversion (see the module header).
@@ -310,7 +318,7 @@ contains
     real(dp), intent(out) :: lat, lon, h
     real(dp), intent(out), optional :: nx, ny, nz
     real(dp) :: b, a2, b2, e2, y0, y1, x0, x1, t, lo, hi, g0, g1, gn
-    real(dp) :: latb, hb, sl, nn, rho, u
+    real(dp) :: latb, hb, sl, nn, rho, u, c2
     logical :: plane
     b = a * (1.0_dp - f)
     a2 = a * a
@@ -376,6 +384,20 @@ contains
         t = u - b2
         x0 = a2 * y0 / (u + a2 * e2)
         x1 = b2 * y1 / u
+      else if (t + a2 < 0.5_dp * a2) then
+        ! near the centre (|p| below ~a/2) the root lies close to -a^2 as well: t + a^2 ~ a |p|
+        ! keeps only what the cancellation left, and x0 = a^2 y0/(t + a^2) with it (on a nearly
+        ! round body, f = 1e-12, a point 6.4e-5 m from the Earth's centre came back 1,221 m
+        ! high; an independent review, 2026-12-05). Solved again for v = t + a^2, which has no
+        ! such cancellation: G(v) = (a y0/v)^2 + (b y1/(v - (a^2 - b^2)))^2 - 1 on the bracket
+        ! the t-bracket becomes. Here v - (a^2 - b^2) = t + b^2 >= b^2/2 (else the branch above).
+        c2 = a2 * ((1.0_dp - b / a) * (1.0_dp + b / a))          ! a^2 - b^2 without cancelling
+        lo = max(c2 + b * y1, a * y0)
+        hi = c2 + sqrt(a2 * y0 * y0 + b2 * y1 * y1)
+        u = eberly_solve(y0, y1, a, b, 0.0_dp, -c2, t + a2, lo, hi, 0.0_dp, .false., .true.)
+        t = u - a2
+        x0 = a2 * y0 / u
+        x1 = b2 * y1 / (u - c2)
       end if
     end if
     ! gradient direction at the foot point (x0/a2, x1/b2); h = t * |g|
@@ -388,6 +410,15 @@ contains
       h = -sqrt((y0 - x0)**2 + x1 * x1)
     else if (f == 0.0_dp) then
       h = hypot(y0, y1) - a
+    else if (t + a2 < 0.5_dp * a2) then
+      ! deep inside (the u and v branches above): the distance to the foot point put back on the
+      ! ellipsoid. t |g| holds the height only at the exact root, and inside the evolute of a
+      ! nearly round body the root is ill-conditioned (the nearest point is barely nearer than
+      ! the rest): 1e-5 a of height at f = 1e-12 within 1.5 a e^2 of the centre (a review). The
+      ! distance to the ellipsoid is stationary at the foot point, so a foot point off by d
+      ! moves it by ~d^2 / a only.
+      rho = sqrt((x0 / a)**2 + (x1 / b)**2)
+      h = -hypot(y0 - x0 / rho, y1 - x1 / rho)
     else
       h = t * gn
     end if

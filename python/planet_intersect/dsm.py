@@ -954,6 +954,16 @@ def _trace_raw(dsm: GeodeticDSM, s, l, method: str, threads, fan: int = 0):
     changes the answers only within the exact mode's tolerance. ``fan`` =
     ``FAN_RUNS`` (pi.intersect): the groups are the runs of consecutive rays
     with one focal point (s equal bit for bit), whatever their lengths."""
+    if method == "following":
+        # below the ellipsoid's smallest radius of curvature (b^2/a, the meridian's at the equator) the
+        # normal lines cross before reaching the surface: the paper's nadir shortcut (the point at depth
+        # H along the foot's normal) then lands off the surface (a hit 31 m above it on a = 1000,
+        # f = 0.3, H = -630; an independent review, 2026-12-05) [shin-park note 21]
+        m_min = dsm.a * (1.0 - dsm.f) ** 2
+        if dsm.hmin < -m_min:
+            raise ValueError(f"method='following': the DSM reaches {dsm.hmin:g} below its ellipsoid, deeper than "
+                             f"the ellipsoid's smallest radius of curvature b^2/a = {m_min:g}, where the paper's "
+                             "nadir shortcut and steps do not hold: use method='exact'")
     from ._ext import core as _core
     from .intersect import FAR_LIMIT, _as_vectors_n2, _unit_scaled, check_threads
 

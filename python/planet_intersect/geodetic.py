@@ -58,7 +58,9 @@ def ecef_to_geodetic(p, a: float = WGS84_A, f: float = WGS84_F, method: str = "e
     method : "exact", "bowring" or "printed"
         "exact" (default): the nearest point on the ellipsoid by a safeguarded
         Newton iteration (relative accuracy ~1e-15, any point within 1e15 a of
-        the centre, poles and centre included). "bowring": Shin & Park eq. 2 as
+        the centre, poles and centre included; within a few a e^2 of the centre
+        of a nearly round body the latitude is ill-conditioned, the height is
+        not). "bowring": Shin & Park eq. 2 as
         Bowring/Dana state it (one step; docs/shin-park-notes.md notes 1-2 give
         its error; meaningless inside the evolute, within ~e^2 a of the centre,
         where its latitude can leave [-90, 90]). "printed": eq. 2 exactly as

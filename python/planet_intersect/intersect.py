@@ -301,7 +301,8 @@ def intersect(dem: DEM, s, l, step_mode: int = 1, dem_read_mode: int = 0,
     The one entry point of both systems. For a :class:`GeodeticDSM` (heights
     above an ellipsoid on a geodetic grid) the methods are "following" (the
     default: the paper's ray following), "exact" (the first entry into the
-    interpolated surface, to 1e-6 m along the ray) and "iterative" (the
+    interpolated surface, to 1e-6 along the ray in the DSM's units: 1e-6 m for
+    metres) and "iterative" (the
     conventional iterative ray tracing the paper criticises); ``s`` and ``l``
     are ECR metres (the DSM's units), ``threads`` as below, keyword
     ``outside="ellipsoid"`` falls back to the bare ellipsoid where a ray
