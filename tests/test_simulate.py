@@ -273,7 +273,8 @@ def test_out_files_are_written_block_by_block_and_complete(box, tmp_path):
     for blk in (9, 10 * nl):
         out = tmp_path / f"maps{blk}"
         sim = pi.simulate_image(dsm, rgb, sensor, threads=1, occlusion=False, block_lines=blk, out=out)
-        assert sorted(q.name for q in out.iterdir()) == sorted(f"{k}.npy" for k in expect)
+        # the maps, and meta.json last (the run finished: simulation note 18; no masks with occlusion=False)
+        assert sorted(q.name for q in out.iterdir()) == sorted([f"{k}.npy" for k in expect] + ["meta.json"])
         for name, (dtype, shape) in expect.items():
             path = out / f"{name}.npy"
             plain = np.load(path)                              # no memory map: the file itself
@@ -625,7 +626,7 @@ def test_cli_simulate_from_geotiffs(tmp_path, capsys):
                  "simulated_occlusion.png"):
         assert (run / name).is_file(), name
     with rasterio.open(run / "simulated.tif") as src:
-        assert src.count == 3 + 8 and src.width == n - 32 and src.height == n - 32
+        assert src.count == 3 + 10 and src.width == n - 32 and src.height == n - 32   # + status, ortho_value
     assert "wall" in out
     lat_c, lon_c = sc["lat_first"] + 79.5 * sc["dlat"], sc["lon_first"] + 79.5 * sc["dlon"]
     rc = main(["simulate", "--dsm", str(tmp_path / "dsm.tif"), "--ortho", str(tmp_path / "ortho.tif"), "--orbit",

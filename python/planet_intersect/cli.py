@@ -979,6 +979,17 @@ def _simulate(args) -> int:
         for w in _notes(caught):                # one line each, naming the file (not a Python warning)
             print(f"simulate: note: --ortho {args.ortho}: {w.message}", file=sys.stderr)
         written = write_outputs(sim, out, "simulated")
+        # what the run was made from (a review: simulate's run folders could not be told apart)
+        import json
+
+        from . import __version__
+        record = {"dsm": str(Path(args.dsm).resolve()), "ortho": str(Path(args.ortho).resolve()),
+                  **{k: v for k, v in vars(args).items() if k not in ("func", "dsm", "ortho") and
+                     isinstance(v, (bool, int, float, str, type(None)))},
+                  **{k: list(v) for k, v in vars(args).items() if isinstance(v, (list, tuple))},
+                  "planet_intersect_version": __version__, "command": " ".join(sys.argv)}
+        (out / "run.json").write_text(json.dumps(record, indent=1) + "\n")
+        written.append(out / "run.json")
         if args.compare_iterative:
             it = simulate_image(dsm, ortho, sensor, method="iterative", occlusion=False, threads=args.threads,
                                 block_lines=args.block_lines)
@@ -1208,13 +1219,17 @@ def main(argv=None) -> int:
         print(f"planet-intersect: error: {exc}", file=sys.stderr)
         return 2
     except MemoryError as exc:
-        print(f"planet-intersect: error: out of memory ({exc or 'an array too large for this machine'}): "
-              "ask for less (a larger --step, fewer rays, smaller chunks)", file=sys.stderr)
+        print(f"planet-intersect: error: out of memory ({exc or 'an array too large for this machine'}); "
+              "ask for less in one run (fewer rays, lines or spectra)", file=sys.stderr)
         return 2
     except ImportError as exc:
         print(f"planet-intersect: error: a Python package is missing ({exc}); "
               "pip install 'planet-intersect[all]'", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        # one line, not a traceback (a review); run folders of the interrupted command are removed
+        print("planet-intersect: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

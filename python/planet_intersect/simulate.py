@@ -352,6 +352,26 @@ class OrthoImage:
 
 
 # ------------------------------------------------------------------- result
+#: units and long names of SimResult's variables in its NetCDF (to_xarray) and GeoTIFF band descriptions
+#: (a review found none: lengths are in the DSM's units, metres for an Earth DSM)
+_SIM_VARIABLE_ATTRS = {
+    "image": ("", "simulated brightness (the ortho-image's values, shaded if asked); fill where not valid"),
+    "valid": ("", "1 where the ray hit the DSM (status HIT or HIT_UNCONVERGED)"),
+    "lat": ("degrees_north", "geodetic latitude of the hit"),
+    "lon": ("degrees_east", "east longitude of the hit, [-180, 180)"),
+    "height": ("DSM units", "geodetic height of the hit above the ellipsoid"),
+    "distance": ("DSM units", "distance from the focal point to the hit along the ray"),
+    "incidence": ("degrees", "angle between the reversed ray and the ellipsoid normal at the hit"),
+    "local_incidence": ("degrees", "angle between the reversed ray and the surface normal used (walls: horizontal)"),
+    "surface": ("", "kind of surface hit: 0 ground, 1 roof, 2 wall, -1 no hit"),
+    "status": ("", "DSM ray status code (docs/status-codes.md)"),
+    "p": ("DSM units", "hit point in the body-fixed (ECR) frame"),
+    "ortho_value": ("", "1 where the ray hit and the ortho-image had a value there in every band"),
+    "occlusion": ("", "1 on ortho pixels inside the footprint that no image pixel sees"),
+    "footprint": ("", "1 on ortho pixels inside the image's ground footprint, on the DSM"),
+}
+
+
 @dataclass
 class SimResult:
     """A simulated image and its per-pixel backplanes, all (nlines, npixels)
@@ -416,6 +436,18 @@ class SimResult:
             else:
                 data[f.name] = (("line", "pixel"), np.asarray(v))
         ds = xr.Dataset(data)
+        for name, (units, long_name) in _SIM_VARIABLE_ATTRS.items():
+            if name in ds:
+                ds[name].attrs.update(long_name=long_name, **({"units": units} if units else {}))
+        g = self.meta
+        if "occlusion" in ds and all(k in g for k in ("ortho_lat_first", "ortho_dlat", "ortho_lon_first", "ortho_dlon")):
+            # the masks' grid (the ortho-image's geodetic grid, after any warp): pixel centres, so that a map
+            # reader can place them (a review: no coordinates, and after a warp a grid no file defined)
+            ds = ds.assign_coords(
+                ortho_lat=("ortho_row", g["ortho_lat_first"] + g["ortho_dlat"] * np.arange(ds.sizes["ortho_row"])),
+                ortho_lon=("ortho_col", g["ortho_lon_first"] + g["ortho_dlon"] * np.arange(ds.sizes["ortho_col"])))
+            ds["ortho_lat"].attrs.update(units="degrees_north", long_name="geodetic latitude of the ortho pixel centre")
+            ds["ortho_lon"].attrs.update(units="degrees_east", long_name="east longitude of the ortho pixel centre")
         ds.attrs["surface_codes"] = "; ".join(f"{k}: {v}" for k, v in SURFACE_CODES.items())
         ds.attrs["status_codes"] = "; ".join(f"{v}: {k}" for k, v in vars(DSMStatus).items() if k.isupper())
         ds.attrs["angles"] = "degrees; latitudes geodetic, longitudes east in [-180, 180)"
@@ -445,47 +477,102 @@ class SimResult:
         """Write the result: ``.png`` (the image, 8-bit, for people), ``.tif``
         (GeoTIFF in sensor geometry, no georeference: the image bands then the
         backplanes lat, lon, height, distance, incidence, local_incidence,
-        surface, valid as float64 bands with descriptions), ``.nc`` (NetCDF of
-        :meth:`to_xarray`). An existing file is not overwritten."""
+        surface, valid, status, ortho_value as float64 bands with those names as
+        descriptions, units and long names, and the run's parameters as tags), ``.nc`` (NetCDF of :meth:`to_xarray`,
+        the parameters as attributes). An existing file is not overwritten.
+
+        The file appears under its name only when it is complete: it is written
+        to a hidden ``.NAME.partial-PID`` beside it and renamed at the end (a
+        GeoTIFF after reading it back); a run that fails or is interrupted
+        removes that file. A disk without room for it is refused before writing
+        (a review found a full disk leaving a GeoTIFF that opened as complete
+        but was three quarters zeros, and Ctrl-C leaving all-zero bands)."""
+        import os
+        import shutil
+
         path = Path(path)
         if path.exists():
             raise FileExistsError(f"{path}: exists; choose another name (nothing is overwritten)")
         if not path.parent.is_dir():
             raise FileNotFoundError(f"{path.parent}: no such directory")
         suffix = path.suffix.lower()
-        if suffix == ".png":
-            from matplotlib import image as mimage
-
-            img = self.display_image()
-            if img.ndim == 3 and img.shape[2] not in (3, 4):
-                img = img[:, :, 0]
-            mimage.imsave(path, img, cmap="gray", vmin=0, vmax=255)
-        elif suffix in (".tif", ".tiff"):
-            import warnings
-
-            import rasterio
-            from rasterio.errors import NotGeoreferencedWarning
-
-            img = np.asarray(self.image, dtype=np.float64)
-            img = img[:, :, None] if img.ndim == 2 else img
-            names = [f"image band {b + 1}" for b in range(img.shape[2])]
-            planes = [img[:, :, b] for b in range(img.shape[2])]
-            for name in ("lat", "lon", "height", "distance", "incidence", "local_incidence", "surface", "valid"):
-                names.append(name)
-                planes.append(np.asarray(getattr(self, name), dtype=np.float64))
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", NotGeoreferencedWarning)
-                with rasterio.open(path, "w", driver="GTiff", width=img.shape[1], height=img.shape[0],
-                                   count=len(planes), dtype="float64") as dst:
-                    for b, (name, plane) in enumerate(zip(names, planes), start=1):
-                        dst.write(plane, b)
-                        dst.set_band_description(b, name)
-                    dst.update_tags(surface_codes=str(SURFACE_CODES), geometry="sensor (line, pixel)")
-        elif suffix == ".nc":
-            self.to_xarray().to_netcdf(path, engine="h5netcdf")
-        else:
+        if suffix not in (".png", ".tif", ".tiff", ".nc"):
             raise ValueError(f"{path}: unknown format {suffix!r} (use .png, .tif or .nc)")
+        nl, npx = self.shape
+        bands = 1 if np.ndim(self.image) == 2 else np.shape(self.image)[2]
+        need = {".png": nl * npx * 4, ".nc": sum(np.asarray(getattr(self, f.name)).nbytes for f in fields(self)
+                                                 if f.name != "meta" and getattr(self, f.name) is not None)}.get(
+            suffix, nl * npx * 8 * (bands + 10))
+        free = shutil.disk_usage(path.parent).free
+        if need * 1.02 + 2 ** 20 > free:
+            raise OSError(28, f"{path}: needs about {need / 2 ** 20:,.0f} MiB, and {path.parent} has "
+                              f"{free / 2 ** 20:,.0f} MiB free (nothing written)")
+        tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
+        try:
+            if suffix == ".png":
+                from matplotlib import image as mimage
+
+                img = self.display_image()
+                if img.ndim == 3 and img.shape[2] not in (3, 4):
+                    img = img[:, :, 0]
+                mimage.imsave(tmp, img, cmap="gray", vmin=0, vmax=255, format="png")
+            elif suffix in (".tif", ".tiff"):
+                self._write_tif(tmp)
+            else:
+                ds = self.to_xarray()
+                ds.to_netcdf(tmp, engine="h5netcdf")
+            try:
+                os.link(tmp, path)                  # no overwrite, even of a file made meanwhile
+            except FileExistsError:
+                raise FileExistsError(f"{path}: appeared while it was written; choose another name "
+                                      "(nothing is overwritten)") from None
+            except OSError:                         # a file system without hard links
+                if path.exists():
+                    raise FileExistsError(f"{path}: exists; choose another name (nothing is overwritten)") from None
+                os.rename(tmp, path)
+        finally:
+            if tmp.exists():
+                tmp.unlink()
         return path
+
+    def _write_tif(self, tmp: Path) -> None:
+        """The GeoTIFF of :meth:`save`, read back before it counts as written."""
+        import warnings
+
+        import rasterio
+        from rasterio.errors import NotGeoreferencedWarning
+
+        img = np.asarray(self.image, dtype=np.float64)
+        img = img[:, :, None] if img.ndim == 2 else img
+        names = [f"image band {b + 1}" for b in range(img.shape[2])]
+        planes = [img[:, :, b] for b in range(img.shape[2])]
+        for name in ("lat", "lon", "height", "distance", "incidence", "local_incidence", "surface", "valid",
+                     "status", "ortho_value"):
+            if getattr(self, name) is None:
+                continue
+            names.append(name)
+            planes.append(np.asarray(getattr(self, name), dtype=np.float64))
+        tags = {k: v for k, v in self.meta.items() if isinstance(v, (int, float, str))}
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(tmp, "w", driver="GTiff", width=img.shape[1], height=img.shape[0],
+                               count=len(planes), dtype="float64") as dst:
+                for b, (name, plane) in enumerate(zip(names, planes), start=1):
+                    dst.write(plane, b)
+                    dst.set_band_description(b, name)
+                    units, long_name = _SIM_VARIABLE_ATTRS.get(name.split(" band")[0], ("", ""))
+                    if units:
+                        dst.set_band_unit(b, units)
+                    if long_name:
+                        dst.update_tags(b, long_name=long_name)
+                dst.update_tags(surface_codes="; ".join(f"{k}: {v}" for k, v in SURFACE_CODES.items()),
+                                geometry="sensor (line, pixel)", **tags)
+            # libtiff reports a failed write (a full disk) on stderr only: read every band back
+            with rasterio.open(tmp) as src:
+                for b, plane in enumerate(planes, start=1):
+                    if not np.array_equal(src.read(b), plane, equal_nan=True):
+                        raise OSError(f"{tmp}: band {b} ({names[b - 1]}) did not read back as written "
+                                      "(a full disk or a failing device); nothing kept")
 
 
 # ----------------------------------------------------------- surface geometry
@@ -760,9 +847,17 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
         if out_dir.exists():
             raise FileExistsError(f"out={out_dir}: exists; choose a new directory (nothing is overwritten)")
         out_dir.mkdir(parents=True)
+    if out_dir is None:
+        _check_memory(sensor.shape, ortho.bands)
     try:
-        return _simulate(dsm, ortho, sensor, method, walls, shading, sun_arr, ambient, fill, occlusion, ground_grid,
-                         wall_slope, roof_min, threads, block_lines, progress, out_dir)
+        sim = _simulate(dsm, ortho, sensor, method, walls, shading, sun_arr, ambient, fill, occlusion, ground_grid,
+                        wall_slope, roof_min, threads, block_lines, progress, out_dir)
+        sim.meta.update(_provenance(dsm, ortho, sensor, sun=sun, ambient=ambient, fill=fill, occlusion=occlusion,
+                                    ground="given" if ground is not None else f"opening of {ground_window:g} m",
+                                    wall_slope=wall_slope, roof_min=roof_min))
+        if out_dir is not None:
+            _finish_out_dir(out_dir, sim)
+        return sim
     except BaseException:
         # a failed run leaves no half-filled maps that look like a result (the folder is this call's own)
         if out_dir is not None:
@@ -770,6 +865,76 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
 
             shutil.rmtree(out_dir, ignore_errors=True)
         raise
+
+
+#: bytes a pixel of the in-memory result holds: image (float32 a band), valid, surface, ortho_value,
+#: status (1 each), six float64 backplanes and p (3 float64)
+_BYTES_PER_PIXEL = 4 + 4 + 6 * 8 + 24
+
+
+def _check_memory(shape, bands: int) -> None:
+    """Refuse an in-memory result larger than the machine's physical memory (a review: an orbit of
+    2,000,000 lines passed every check and the kernel killed the process)."""
+    import os
+
+    nl, npx = shape
+    need = nl * npx * (_BYTES_PER_PIXEL + 4 * (bands - 1))
+    try:
+        phys = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return
+    if need > phys:
+        raise MemoryError(f"sensor: {nl:,} lines x {npx:,} pixels need {need / 2 ** 30:,.1f} GiB for the result, "
+                          f"more than this machine's {phys / 2 ** 30:,.1f} GiB: pass out=DIR (the outputs then go to "
+                          f"memory-mapped files, block by block; the CLI's --memmap) or simulate fewer lines per call")
+
+
+def _provenance(dsm, ortho, sensor, **options) -> dict:
+    """What a simulation was made from, as numbers and strings for its files' attributes and tags (a
+    review: two runs with other sensors or options could not be told apart from their files)."""
+    import datetime
+
+    from . import __version__
+
+    out = {"planet_intersect_version": __version__,
+           "created_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+           "dsm_shape": f"{dsm.nrows} x {dsm.ncols}", "dsm_lat_first": dsm.lat_first, "dsm_lon_first": dsm.lon_first,
+           "dsm_dlat": dsm.dlat, "dsm_dlon": dsm.dlon, "dsm_a": dsm.a, "dsm_f": dsm.f,
+           "dsm_interpolation": dsm.interpolation, "dsm_file": str(getattr(dsm, "path", None) or "(array)"),
+           "ortho_shape": f"{ortho.shape[0]} x {ortho.shape[1]}", "ortho_bands": ortho.bands,
+           "ortho_lat_first": ortho.lat_first, "ortho_lon_first": ortho.lon_first, "ortho_dlat": ortho.dlat,
+           "ortho_dlon": ortho.dlon, "ortho_file": str(getattr(ortho, "path", None) or "(array)"),
+           "ortho_resampling": str(getattr(ortho, "resampling", None) or "(not warped)"),
+           "sensor": type(sensor).__name__, "sensor_lines": int(sensor.shape[0]), "sensor_pixels": int(sensor.shape[1])}
+    s = getattr(sensor, "s", None)
+    if s is not None:
+        s = np.atleast_2d(np.asarray(s, dtype=np.float64))
+        out["sensor_focal_point_first"] = " ".join(f"{x:.6f}" for x in s[0])
+        out["sensor_focal_point_last"] = " ".join(f"{x:.6f}" for x in s[-1])
+    for k, v in options.items():
+        out[k] = v if isinstance(v, (bool, int, float, str)) else ("none" if v is None else
+                                                                   " ".join(f"{x:g}" for x in np.ravel(v)))
+        if isinstance(out[k], bool):
+            out[k] = int(out[k])
+    return out
+
+
+def _finish_out_dir(out_dir: Path, sim) -> None:
+    """out=DIR's last files: the ortho-grid masks and meta.json, written last and renamed into place,
+    so that a folder without meta.json is a run that did not finish (a review: a killed run left
+    full-size maps that loaded as complete, their unwritten lines saying HIT at 0 N 0 E)."""
+    import json
+    import os
+
+    for name in ("occlusion", "footprint"):
+        v = getattr(sim, name)
+        if v is not None:
+            np.save(out_dir / f"{name}.npy", np.asarray(v))
+    meta = {k: (v if isinstance(v, (bool, int, float, str)) else str(v)) for k, v in sim.meta.items()}
+    meta["complete"] = True
+    tmp = out_dir / ".meta.json.partial"
+    tmp.write_text(json.dumps(meta, indent=1) + "\n")
+    os.replace(tmp, out_dir / "meta.json")
 
 
 def _rows(arr, blk: slice, shape):
