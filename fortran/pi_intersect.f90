@@ -119,7 +119,7 @@ contains
     real(dp) :: d_hit
     !> the point the line is anchored at for the search and the tangent point:
     !> s itself, or for a far spacecraft a point on the line near the planet
-    real(dp) :: s0(3), shift
+    real(dp) :: s0(3), shift, margin
 
     nan = ieee_value(0.0_dp, ieee_quiet_nan)
     res%p = nan; res%lat = nan; res%lon = nan; res%radius = nan
@@ -172,7 +172,13 @@ contains
         ! farther out than the anchor's own rounding (~eps |s|), so that the anchor
         ! is outside the surface whatever the rounding (the fuzz harness found hits
         ! placed at an anchor that had rounded to inside a DEM whose rmax is its top)
-        shift = max(d0 - max(1.0e-9_dp*dem%rmax, 16.0_dp*epsilon(1.0_dp)*sn), 0.0_dp)
+        ! The margin is radial: along a grazing line a point m before the entry is only ~m^2/(2 rmax)
+        ! higher, and the anchor's rounding (~eps |s| in each coordinate) can put it inside the
+        ! surface (the bulk fuzzer: a line 1.03 km deep in a sphere seen from 6.9e11 rmax, anchored
+        ! 14.6 km before its entry, i.e. 0.27 km above the surface, rounded 11 m inside and was a
+        ! hit there). So the anchor goes back until it is `margin` above the r_max sphere.
+        margin = max(1.0e-9_dp*dem%rmax, 16.0_dp*epsilon(1.0_dp)*sn)
+        shift = max(d0 - (sqrt(max((dem%rmax + margin)**2 - tn**2, 0.0_dp)) - half) - margin, 0.0_dp)
         s0 = s + shift*l
         dm = dm - shift
         d0 = 0.0_dp              ! search from the anchor itself: d0's own rounding (~eps |s|)

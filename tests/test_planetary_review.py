@@ -135,3 +135,35 @@ def test_the_papers_tangent_point_is_up_to_1_1_km_from_the_nearest_point_on_mars
     dsc = np.linalg.norm(ex.sc[m] - pa.sc[m], axis=1)
     assert 1.0 < dsc.max() < 1.2                                  # km
     assert 0.003 < np.abs(ex.tangent_height[m] - pa.tangent_height[m]).max() < 0.0034   # km: note 11's 3.3 m
+
+
+@pytest.mark.parametrize("method", ["exact", "stepping"])
+def test_grazing_lines_from_far_away_hit_on_the_surface(method):
+    # paper-notes note 19: a far spacecraft's line is anchored just before it enters the r_max
+    # sphere. The margin was along the line, so on a grazing line the anchor was barely above the
+    # surface and its rounding (~eps |s|) put it inside: the bulk fuzzer (seed 7721) found an
+    # exact-mode hit 11 m inside a 6,371 km sphere, seen from 6.9e11 radii, at the anchor itself
+    dem = pi.DEM.from_array(np.full((180, 360), 6371.0))
+    s = np.array([-2815824014251777.5, -2082107210404983.5, 2680210698044257.0])
+    l = np.array([2815824014250159.0, 2082107210410268.0, -2680210698050278.5])
+    res = pi.intersect(dem, s, l, method=method, threads=1)
+    assert res.status[0] == 0 and abs(np.linalg.norm(res.p[0]) - 6371.0) < 1e-9 * 6371.0
+    # and a family: lines whose closest approach is 0.95-0.99999 R, from 1e6 to 9e14 radii
+    rng = np.random.default_rng(4)
+    n = 400
+    u = rng.normal(size=(n, 3))
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    w = rng.normal(size=(n, 3))
+    w -= (w * u).sum(1)[:, None] * u
+    w /= np.linalg.norm(w, axis=1)[:, None]
+    dist = 6371.0 * 10 ** rng.uniform(6, np.log10(9e14), n)
+    b = 6371.0 * (1 - 10 ** rng.uniform(-5, np.log10(0.05), n))     # closest approach
+    s = u * dist[:, None]
+    target = w * b[:, None]
+    res = pi.intersect(dem, s, target - s, method=method, threads=1)
+    hit = res.status == 0
+    # a line's position at the planet is known to ~eps |s| (note 19): lines deeper than ~45 times
+    # that must hit; shallower ones may go either way; every hit must be on the surface
+    deep = 6371.0 - b > 1e-14 * dist
+    assert deep.sum() > 150 and hit[deep].all()
+    assert np.max(np.abs(np.linalg.norm(res.p[hit], axis=1) - 6371.0)) < 1e-9 * 6371.0
