@@ -131,6 +131,7 @@ def test_simulate_leaves_the_process_warning_filters_alone(monkeypatch):
     assert changed == []
 
 
+@pytest.mark.skipif(not os.path.isdir("/proc/self/fdinfo"), reason="needs Linux's /proc/self/fdinfo")
 def test_the_dem_descriptor_is_not_inherited_by_programs_started_meanwhile(tmp_path):
     # a mode-1 call opens the .dem with the C library's open(); without O_CLOEXEC a program started
     # from another thread during the call (os.system, subprocess) inherited it
