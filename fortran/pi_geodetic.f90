@@ -100,6 +100,8 @@ contains
       ! stationary in lat at the foot point, so lat's rounding no longer reaches h [note 2]
       h = p * cos(lat) + z * sin(lat) - a * sqrt(1.0_dp - e2 * sin(lat)**2)
     end if
+    ! on the axis, the centre included (whose nearest surface point is a pole): h = |z| - b
+    if (p == 0.0_dp) h = abs(z) - b
   end subroutine ecr_to_geodetic_bowring
 
   !> Exact ECR -> geodetic conversion (see the module header).

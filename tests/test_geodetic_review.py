@@ -86,3 +86,11 @@ def test_the_following_refuses_a_dsm_deeper_than_the_smallest_radius_of_curvatur
     assert ex.status[0] == 0 and ex.height[0] == pytest.approx(-630.0, abs=1e-6)
     # the review's brute force: x = 311.2876 on the equator
     assert ex.p[0, 0] == pytest.approx(311.2876, abs=1e-4)
+
+
+def test_eq2_at_the_centre_is_minus_b():
+    # the centre's nearest surface points are the poles: h = -b, as the exact conversion says (the
+    # polar form above first dropped the axis case and gave -a there: a second review)
+    for method in ("bowring", "exact"):
+        _, _, h = pi.ecef_to_geodetic([0.0, 0.0, 0.0], method=method)
+        assert float(h) == pytest.approx(-B, abs=1e-6), method

@@ -179,3 +179,44 @@ def test_simulate_run_folders_hold_run_json(tmp_path, capsys):
     rec = json.loads((tmp_path / "o" / "run-001" / "run.json").read_text())
     assert rec["dsm"] == str(dsm.resolve()) and rec["oblique"] == [9.0, 90.0] and rec["method"] == "exact"
     assert rec["planet_intersect_version"] == pi.__version__
+
+
+def test_a_second_review_of_the_new_files(sim, tmp_path):
+    # two saves to one path at once wrote one temporary file (its name was the pid's); names of
+    # 241-255 characters failed on the temporary's longer name; meta.json held a bare NaN; frame
+    # cameras 5 m apart left the same record (a second review, 2026-12-05)
+    import threading
+
+    res, dsm, ortho, sensor = sim
+    other = pi.simulate_image(dsm, ortho, sensor, threads=1, fill=7.0, occlusion=False)
+    target, errors, done = tmp_path / "same.nc", [], []
+
+    def save(r):
+        try:
+            done.append((r, r.save(target)))
+        except FileExistsError as exc:
+            errors.append(exc)
+
+    pytest.importorskip("h5netcdf", reason="the NetCDF needs h5netcdf")
+    ts = [threading.Thread(target=save, args=(r,)) for r in (res, other)]
+    for t_ in ts:
+        t_.start()
+    for t_ in ts:
+        t_.join()
+    assert len(done) == 1 and len(errors) == 1
+    xr = pytest.importorskip("xarray")
+    with xr.open_dataset(target, engine="h5netcdf") as ds:
+        assert ds.attrs["fill"] == done[0][0].meta["fill"]       # the file holds the winner's data
+    long = tmp_path / ("x" * 250 + ".png")
+    assert res.save(long).exists()
+    nan_run = pi.simulate_image(dsm, ortho, sensor, threads=1, fill=float("nan"), out=tmp_path / "nan")
+    meta = json.loads((tmp_path / "nan" / "meta.json").read_text())   # strict: NaN as a string
+    json.dumps(meta, allow_nan=False)
+    assert meta["fill"] == "nan" and nan_run.meta["fill"] != nan_run.meta["fill"]
+    npx = sensor.shape[1]
+    s4, l4 = sensor.rays(0, 4)
+    cams = [pi.FrameCamera(np.atleast_2d(s4)[0] + dx, np.asarray(l4).reshape(4, npx, 3)) for dx in (0.0, 5.0)]
+    recs = [pi.simulate_image(dsm, ortho, c, threads=1, occlusion=False).meta["sensor_focal_point_first"]
+            for c in cams]
+    assert recs[0] != recs[1]
+

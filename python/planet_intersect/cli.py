@@ -985,14 +985,21 @@ def _simulate(args) -> int:
         from . import __version__
         record = {"dsm": str(Path(args.dsm).resolve()), "ortho": str(Path(args.ortho).resolve()),
                   **{k: v for k, v in vars(args).items() if k not in ("func", "dsm", "ortho") and
-                     isinstance(v, (bool, int, float, str, type(None)))},
-                  **{k: list(v) for k, v in vars(args).items() if isinstance(v, (list, tuple))},
-                  "planet_intersect_version": __version__, "command": " ".join(sys.argv)}
-        (out / "run.json").write_text(json.dumps(record, indent=1) + "\n")
+                     not k.startswith("_") and isinstance(v, (bool, int, float, str, type(None)))},
+                  **{k: list(v) for k, v in vars(args).items() if isinstance(v, (list, tuple)) and not k.startswith("_")},
+                  "planet_intersect_version": __version__,
+                  "command": " ".join(["planet-intersect", *args._argv] if getattr(args, "_argv", None) is not None
+                                      else sys.argv)}
+        from .simulate import _jsonable
+        record = {k: _jsonable(v) if not isinstance(v, list) else [_jsonable(x) for x in v] for k, v in record.items()}
+        (out / "run.json").write_text(json.dumps(record, indent=1, allow_nan=False) + "\n")
         written.append(out / "run.json")
         if args.compare_iterative:
+            # memory-mapped too when the main run was (a review: in memory, a machine too small for it
+            # refused it after the main run, and the whole run folder went)
             it = simulate_image(dsm, ortho, sensor, method="iterative", occlusion=False, threads=args.threads,
-                                block_lines=args.block_lines)
+                                block_lines=args.block_lines,
+                                out=out / "backplanes_iterative" if args.memmap else None)
             written += write_outputs(it, out, "iterative", netcdf=False, geotiff=False)
             print(f"  iterative: {int((~it.valid).sum()):,} pixels without a hit, "
                   f"{int(wrong_surface(it, sim).sum()):,} on the wrong surface")
@@ -1213,6 +1220,7 @@ def _config(args) -> int:
 def main(argv=None) -> int:
     """Entry point of the console script."""
     args = _parser().parse_args(argv)
+    args._argv = None if argv is None else [str(a) for a in argv]
     try:
         return args.func(args)
     except (CLIError, ValueError, TypeError, OSError) as exc:
@@ -1227,8 +1235,16 @@ def main(argv=None) -> int:
               "pip install 'planet-intersect[all]'", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        # one line, not a traceback (a review); run folders of the interrupted command are removed
+        # one line, not a traceback (a review); run folders of the interrupted command are removed.
+        # Run as a program, die of SIGINT as before, so that a shell loop around it stops too (a
+        # return code of 130 let bash run the next iteration: a second review)
         print("planet-intersect: interrupted", file=sys.stderr)
+        if argv is None:
+            import os
+            import signal
+
+            signal.signal(signal.SIGINT, signal.SIG_DFL)
+            os.kill(os.getpid(), signal.SIGINT)
         return 130
 
 

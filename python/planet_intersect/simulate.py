@@ -452,6 +452,10 @@ class SimResult:
         ds.attrs["status_codes"] = "; ".join(f"{v}: {k}" for k, v in vars(DSMStatus).items() if k.isupper())
         ds.attrs["angles"] = "degrees; latitudes geodetic, longitudes east in [-180, 180)"
         for k, v in self.meta.items():
+            if isinstance(v, np.generic):
+                v = v.item()                          # (numpy scalars were dropped: a review)
+            if isinstance(v, bool):
+                v = int(v)                            # (NetCDF has no boolean attribute)
             if isinstance(v, (int, float, str)):
                 ds.attrs[k] = v
         return ds
@@ -482,7 +486,7 @@ class SimResult:
         the parameters as attributes). An existing file is not overwritten.
 
         The file appears under its name only when it is complete: it is written
-        to a hidden ``.NAME.partial-PID`` beside it and renamed at the end (a
+        to a hidden ``.pi-save-XXXXXXXX.partial.EXT`` beside it and linked to its name at the end (a
         GeoTIFF after reading it back); a run that fails or is interrupted
         removes that file. A disk without room for it is refused before writing
         (a review found a full disk leaving a GeoTIFF that opened as complete
@@ -507,7 +511,13 @@ class SimResult:
         if need * 1.02 + 2 ** 20 > free:
             raise OSError(28, f"{path}: needs about {need / 2 ** 20:,.0f} MiB, and {path.parent} has "
                               f"{free / 2 ** 20:,.0f} MiB free (nothing written)")
-        tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
+        import tempfile
+
+        # a name of its own (two saves to one path, from two threads or two hosts with one pid, wrote
+        # one file: a review), short whatever the target's name (241-255 characters must still save)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".pi-save-", suffix=f".partial{path.suffix}")
+        os.close(fd)
+        tmp = Path(tmp)
         try:
             if suffix == ".png":
                 from matplotlib import image as mimage
@@ -521,6 +531,17 @@ class SimResult:
             else:
                 ds = self.to_xarray()
                 ds.to_netcdf(tmp, engine="h5netcdf")
+        except OSError as exc:
+            if tmp.exists():
+                tmp.unlink()
+            if exc.errno is None:
+                raise OSError(f"{path}: not written ({exc})") from exc
+            raise OSError(exc.errno, f"{path}: not written ({exc.strerror or exc})") from exc
+        except BaseException:
+            if tmp.exists():
+                tmp.unlink()
+            raise
+        try:
             try:
                 os.link(tmp, path)                  # no overwrite, even of a file made meanwhile
             except FileExistsError:
@@ -566,6 +587,8 @@ class SimResult:
                     if long_name:
                         dst.update_tags(b, long_name=long_name)
                 dst.update_tags(surface_codes="; ".join(f"{k}: {v}" for k, v in SURFACE_CODES.items()),
+                                status_codes="; ".join(f"{v}: {k}" for k, v in vars(DSMStatus).items()
+                                                       if k.isupper()),
                                 geometry="sensor (line, pixel)", **tags)
             # libtiff reports a failed write (a full disk) on stderr only: read every band back
             with rasterio.open(tmp) as src:
@@ -855,9 +878,6 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
         sim.meta.update(_provenance(dsm, ortho, sensor, sun=sun, ambient=ambient, fill=fill, occlusion=occlusion,
                                     ground="given" if ground is not None else f"opening of {ground_window:g} m",
                                     wall_slope=wall_slope, roof_min=roof_min))
-        if out_dir is not None:
-            _finish_out_dir(out_dir, sim)
-        return sim
     except BaseException:
         # a failed run leaves no half-filled maps that look like a result (the folder is this call's own)
         if out_dir is not None:
@@ -865,6 +885,11 @@ def simulate_image(dsm: GeodeticDSM, ortho: OrthoImage, sensor, method: str = "e
 
             shutil.rmtree(out_dir, ignore_errors=True)
         raise
+    if out_dir is not None:
+        # the maps are complete here: if the masks or meta.json cannot be written (a full disk), the
+        # maps stay and the folder has no meta.json (a review: a failure here deleted a finished run)
+        _finish_out_dir(out_dir, sim)
+    return sim
 
 
 #: bytes a pixel of the in-memory result holds: image (float32 a band), valid, surface, ortho_value,
@@ -906,17 +931,33 @@ def _provenance(dsm, ortho, sensor, **options) -> dict:
            "ortho_dlon": ortho.dlon, "ortho_file": str(getattr(ortho, "path", None) or "(array)"),
            "ortho_resampling": str(getattr(ortho, "resampling", None) or "(not warped)"),
            "sensor": type(sensor).__name__, "sensor_lines": int(sensor.shape[0]), "sensor_pixels": int(sensor.shape[1])}
-    s = getattr(sensor, "s", None)
-    if s is not None:
-        s = np.atleast_2d(np.asarray(s, dtype=np.float64))
-        out["sensor_focal_point_first"] = " ".join(f"{x:.6f}" for x in s[0])
-        out["sensor_focal_point_last"] = " ".join(f"{x:.6f}" for x in s[-1])
+    nl, npx = sensor.shape
+    for tag, k in (("first", 0), ("last", nl - 1)):
+        # each end line's centre pixel: where it was and where it looked (a review: two frame cameras
+        # 5 m apart, or two rolls, left the same record)
+        s, l = sensor.rays(k, k + 1)
+        s, l = np.atleast_2d(s), np.atleast_2d(l)
+        j = min(npx // 2, len(l) - 1)
+        out[f"sensor_focal_point_{tag}"] = " ".join(f"{x:.6f}" for x in s[min(j, len(s) - 1)])
+        v = np.asarray(l[j], dtype=np.float64)
+        v = v / np.max(np.abs(v))                       # (rays of 1e154 overflowed the norm: the fuzz)
+        out[f"sensor_centre_ray_{tag}"] = " ".join(f"{x:.12f}" for x in v / np.linalg.norm(v))
     for k, v in options.items():
         out[k] = v if isinstance(v, (bool, int, float, str)) else ("none" if v is None else
                                                                    " ".join(f"{x:g}" for x in np.ravel(v)))
         if isinstance(out[k], bool):
             out[k] = int(out[k])
     return out
+
+
+def _jsonable(v):
+    """A value strict JSON can hold: numbers as numbers (numpy scalars too), NaN and infinities and
+    anything else as strings (json's bare NaN is refused by strict parsers: a review)."""
+    if isinstance(v, np.generic):
+        v = v.item()
+    if isinstance(v, float) and not math.isfinite(v):
+        return str(v)
+    return v if isinstance(v, (bool, int, float, str, type(None))) else str(v)
 
 
 def _finish_out_dir(out_dir: Path, sim) -> None:
@@ -930,7 +971,7 @@ def _finish_out_dir(out_dir: Path, sim) -> None:
         v = getattr(sim, name)
         if v is not None:
             np.save(out_dir / f"{name}.npy", np.asarray(v))
-    meta = {k: (v if isinstance(v, (bool, int, float, str)) else str(v)) for k, v in sim.meta.items()}
+    meta = {k: _jsonable(v) for k, v in sim.meta.items()}
     meta["complete"] = True
     tmp = out_dir / ".meta.json.partial"
     tmp.write_text(json.dumps(meta, indent=1) + "\n")
