@@ -90,7 +90,32 @@ def _provenance(args, **options) -> dict:
 
     return {"surface": str(Path(args.dem).resolve()), "rays": str(Path(args.rays).resolve()),
             **{k: ("" if v is None else v) for k, v in options.items()},
-            "planet_intersect_version": __version__, "command": " ".join(sys.argv)}
+            "planet_intersect_version": __version__, "command": _command_line(args)}
+
+
+def _command_line(args) -> str:
+    """The command line a run's records name: the arguments main() was given, else the process's
+    (a review: a programmatic call recorded its caller's command line)."""
+    argv = getattr(args, "_argv", None)
+    return " ".join(["planet-intersect", *argv]) if argv is not None else " ".join(sys.argv)
+
+
+def _simulate_record(args) -> dict:
+    """run.json of a simulate run: the files, every option as given, the version and the command
+    line, as strict JSON values (a review: simulate's run folders could not be told apart)."""
+    from . import __version__
+    from .simulate import _jsonable
+
+    record = {"dsm": str(Path(args.dsm).resolve()), "ortho": str(Path(args.ortho).resolve())}
+    for k, v in vars(args).items():
+        if k in ("func", "dsm", "ortho") or k.startswith("_"):
+            continue
+        if isinstance(v, (list, tuple)):
+            record[k] = [_jsonable(x) for x in v]
+        elif isinstance(v, (bool, int, float, str, type(None))):
+            record[k] = _jsonable(v)
+    record.update(planet_intersect_version=__version__, command=_command_line(args))
+    return record
 
 
 def _write_run(out: Path, res, prov: dict) -> list:
@@ -979,20 +1004,9 @@ def _simulate(args) -> int:
         for w in _notes(caught):                # one line each, naming the file (not a Python warning)
             print(f"simulate: note: --ortho {args.ortho}: {w.message}", file=sys.stderr)
         written = write_outputs(sim, out, "simulated")
-        # what the run was made from (a review: simulate's run folders could not be told apart)
         import json
 
-        from . import __version__
-        record = {"dsm": str(Path(args.dsm).resolve()), "ortho": str(Path(args.ortho).resolve()),
-                  **{k: v for k, v in vars(args).items() if k not in ("func", "dsm", "ortho") and
-                     not k.startswith("_") and isinstance(v, (bool, int, float, str, type(None)))},
-                  **{k: list(v) for k, v in vars(args).items() if isinstance(v, (list, tuple)) and not k.startswith("_")},
-                  "planet_intersect_version": __version__,
-                  "command": " ".join(["planet-intersect", *args._argv] if getattr(args, "_argv", None) is not None
-                                      else sys.argv)}
-        from .simulate import _jsonable
-        record = {k: _jsonable(v) if not isinstance(v, list) else [_jsonable(x) for x in v] for k, v in record.items()}
-        (out / "run.json").write_text(json.dumps(record, indent=1, allow_nan=False) + "\n")
+        (out / "run.json").write_text(json.dumps(_simulate_record(args), indent=1, allow_nan=False) + "\n")
         written.append(out / "run.json")
         if args.compare_iterative:
             # memory-mapped too when the main run was (a review: in memory, a machine too small for it
