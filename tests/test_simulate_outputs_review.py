@@ -220,3 +220,32 @@ def test_a_second_review_of_the_new_files(sim, tmp_path):
             for c in cams]
     assert recs[0] != recs[1]
 
+
+
+def test_the_cli_takes_a_bare_earth_model_or_the_openings_width(tmp_path, capsys):
+    # the review's hilly paper scene mislabelled bare terrain as roof with the fixed 100 m opening,
+    # and the CLI could not be told otherwise: --ground FILE and --ground-window METRES
+    from test_simulate_cli import _files, _run
+
+    xr = pytest.importorskip("xarray", reason="the NetCDF output needs xarray")
+    dsm, ortho, grid = _files(tmp_path)                  # flat 80 m ground, a 15 m box of 6 x 6 cells
+    flat = dict(grid, heights=np.full_like(grid["heights"], 80.0))
+    np.savez(tmp_path / "ground.npz", interpolation="nearest", **flat)
+    common = ["--dsm", dsm, "--ortho", ortho, "--oblique", "0,90", "--quiet", "--no-occlusion"]
+    runs = {}
+    for name, extra in (("default", []), ("ground", ["--ground", tmp_path / "ground.npz"]),
+                        ("narrow", ["--ground-window", "3"])):
+        rc, out, err = _run([*common, *extra, "--out", tmp_path / name], capsys)
+        assert rc == 0, err
+        with xr.open_dataset(tmp_path / name / "run-001" / "simulated.nc", engine="h5netcdf") as ds:
+            runs[name] = ds["surface"].values.copy()
+    roof = 1
+    # the true bare earth: the box's 36 cells are roof, as with the 100 m opening on this small scene
+    assert (runs["ground"] == roof).sum() == (runs["default"] == roof).sum() > 0
+    # a 3 m opening is narrower than the 6 m box: the box survives the opening and reads as ground
+    assert (runs["narrow"] == roof).sum() < (runs["default"] == roof).sum()
+    rc, out, err = _run([*common, "--ground", tmp_path / "ground.npz", "--ground-window", "5",
+                         "--out", tmp_path / "both"], capsys)
+    assert rc == 2 and "--ground-window" in err
+    rc, out, err = _run([*common, "--ground-window", "-1", "--out", tmp_path / "neg"], capsys)
+    assert rc == 2 and "positive" in err

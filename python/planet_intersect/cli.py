@@ -945,10 +945,15 @@ def _simulate(args) -> int:
         raise CLIError(f"--threads must be >= 0, got {args.threads}")
     if args.block_lines is not None and args.block_lines < 1:
         raise CLIError(f"--block-lines must be >= 1, got {args.block_lines}")
+    if args.ground is not None and args.ground_window is not None:
+        raise CLIError("--ground-window shapes the bare earth estimated when --ground is not given: give one of them")
+    if args.ground_window is not None and not (math.isfinite(args.ground_window) and args.ground_window > 0):
+        raise CLIError(f"--ground-window must be a positive number of metres, got {args.ground_window}")
     t0 = time.perf_counter()
     if args.dsm is None:
-        if args.ortho is not None or args.geometry is not None:
-            raise CLIError("--ortho and --geometry need --dsm (without --dsm the built-in paper scene is used)")
+        if args.ortho is not None or args.geometry is not None or args.ground is not None:
+            raise CLIError("--ortho, --geometry and --ground need --dsm (without --dsm the built-in paper scene is "
+                           "used)")
         extra = _given(args, ("orbit", "altitude", "step", "margin") + _ORBIT_ONLY)
         if extra:
             raise CLIError(f"{', '.join(extra)}: need --dsm (the built-in paper scene takes only --oblique's "
@@ -979,6 +984,9 @@ def _simulate(args) -> int:
         warnings.simplefilter("always")
         dsm = GeodeticDSM.read(args.dsm, interpolation=args.interpolation)
         ortho = OrthoImage.read(args.ortho, resampling=args.ortho_resampling)
+        # the bare earth for the surface classes, on the DSM's ellipsoid (simulate_image samples it
+        # on the DSM's grid)
+        ground = None if args.ground is None else GeodeticDSM.read(args.ground, interpolation=dsm.interpolation)
     for w in _notes(caught):                    # what the readers say of the files, one line each
         print(f"simulate: note: {w.message}", file=sys.stderr)
     sensor = _sensor_from_args(args, dsm, None)
@@ -996,8 +1004,9 @@ def _simulate(args) -> int:
     with _run_dir(Path(args.out)) as out:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
+            ground_kw = {} if args.ground_window is None else {"ground_window": args.ground_window}
             sim = simulate_image(dsm, ortho, sensor, method=args.method, walls=args.walls, shading=args.shading,
-                                 sun=args.sun, ambient=args.ambient, fill=args.fill,
+                                 sun=args.sun, ambient=args.ambient, fill=args.fill, ground=ground, **ground_kw,
                                  occlusion=not args.no_occlusion, threads=args.threads,
                                  block_lines=args.block_lines, progress=not args.quiet,
                                  out=out / "backplanes" if args.memmap else None)
@@ -1087,6 +1096,12 @@ def _add_simulate_parser(sub) -> None:
     s.add_argument("--sun", type=_pair, metavar="AZIMUTH,ELEVATION", help="Sun direction for --shading lambert, deg")
     s.add_argument("--ambient", type=float, default=0.0, help="ambient fraction for --shading lambert")
     s.add_argument("--fill", type=float, default=0.0, help="value of pixels without a hit")
+    s.add_argument("--ground", metavar="FILE",
+                   help="bare-earth heights (a raster or .npz as --dsm, read the same way) for the roof/wall/ground "
+                        "classes; default: an opening of the DSM (see --ground-window)")
+    s.add_argument("--ground-window", type=float, default=None, metavar="METRES",
+                   help="without --ground: the width of the DSM opening that estimates bare earth (default 100; "
+                        "wider than the widest building, narrower than the terrain's hills)")
     s.add_argument("--no-occlusion", action="store_true", help="skip the occlusion mask (one ray per ortho pixel)")
     s.add_argument("--compare-iterative", action="store_true", help="also simulate with the iterative method")
     s.add_argument("--memmap", action="store_true", help="keep the backplanes in memory-mapped files (huge images)")
