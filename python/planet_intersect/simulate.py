@@ -519,29 +519,22 @@ class SimResult:
         os.close(fd)
         tmp = Path(tmp)
         try:
-            if suffix == ".png":
-                from matplotlib import image as mimage
+            try:
+                if suffix == ".png":
+                    from matplotlib import image as mimage
 
-                img = self.display_image()
-                if img.ndim == 3 and img.shape[2] not in (3, 4):
-                    img = img[:, :, 0]
-                mimage.imsave(tmp, img, cmap="gray", vmin=0, vmax=255, format="png")
-            elif suffix in (".tif", ".tiff"):
-                self._write_tif(tmp)
-            else:
-                ds = self.to_xarray()
-                ds.to_netcdf(tmp, engine="h5netcdf")
-        except OSError as exc:
-            if tmp.exists():
-                tmp.unlink()
-            if exc.errno is None:
-                raise OSError(f"{path}: not written ({exc})") from exc
-            raise OSError(exc.errno, f"{path}: not written ({exc.strerror or exc})") from exc
-        except BaseException:
-            if tmp.exists():
-                tmp.unlink()
-            raise
-        try:
+                    img = self.display_image()
+                    if img.ndim == 3 and img.shape[2] not in (3, 4):
+                        img = img[:, :, 0]
+                    mimage.imsave(tmp, img, cmap="gray", vmin=0, vmax=255, format="png")
+                elif suffix in (".tif", ".tiff"):
+                    self._write_tif(tmp)
+                else:
+                    self.to_xarray().to_netcdf(tmp, engine="h5netcdf")
+            except OSError as exc:                  # named after the file asked for, not the temporary
+                if exc.errno is None:
+                    raise OSError(f"{path}: not written ({exc})") from exc
+                raise OSError(exc.errno, f"{path}: not written ({exc.strerror or exc})") from exc
             try:
                 os.link(tmp, path)                  # no overwrite, even of a file made meanwhile
             except FileExistsError:
@@ -551,7 +544,7 @@ class SimResult:
                 if path.exists():
                     raise FileExistsError(f"{path}: exists; choose another name (nothing is overwritten)") from None
                 os.rename(tmp, path)
-        finally:
+        finally:                                    # whatever happened, no partial file stays
             if tmp.exists():
                 tmp.unlink()
         return path
@@ -900,14 +893,11 @@ _BYTES_PER_PIXEL = 4 + 4 + 6 * 8 + 24
 def _check_memory(shape, bands: int) -> None:
     """Refuse an in-memory result larger than the machine's physical memory (a review: an orbit of
     2,000,000 lines passed every check and the kernel killed the process)."""
-    import os
+    from .footprint import _physical_memory           # (the cell table's check asks the same)
 
     nl, npx = shape
     need = nl * npx * (_BYTES_PER_PIXEL + 4 * (bands - 1))
-    try:
-        phys = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
-        return
+    phys = _physical_memory()
     if need > phys:
         raise MemoryError(f"sensor: {nl:,} lines x {npx:,} pixels need {need / 2 ** 30:,.1f} GiB for the result, "
                           f"more than this machine's {phys / 2 ** 30:,.1f} GiB: pass out=DIR (the outputs then go to "
